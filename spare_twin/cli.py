@@ -1,0 +1,65 @@
+"""The `spare-twin` command line: one console script with a subcommand per stage.
+
+Each subcommand lives in `spare_twin/commands/<name>.py` with `register(subparsers)`, which adds its
+parser and sets `func`. Heavy libraries are imported inside the handlers, so `--help` is instant.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from spare_twin import SpareTwinError, __version__
+
+#: Subcommand modules, in the order `--help` lists them.
+COMMAND_MODULES = [
+    "object",
+    "render",
+    "dataset",
+    "train",
+    "evaluate",
+    "predict",
+    "capture",
+    "compare",
+    "demo",
+    "bench",
+]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="spare-twin",
+        description="Physical-digital twins of articulated objects: print, simulate, learn, capture, compare.",
+    )
+    parser.add_argument("--version", action="version", version=f"spare-twin {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name in COMMAND_MODULES:
+        try:
+            module = importlib.import_module(f"spare_twin.commands.{name}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"spare_twin.commands.{name}":
+                continue  # stage not built in this checkout
+            raise
+        module.register(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help(sys.stderr)
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except SpareTwinError as exc:
+        print(f"spare-twin {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"spare-twin {args.command}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

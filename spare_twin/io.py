@@ -1,0 +1,91 @@
+"""Small file helpers: atomic writes (temporary name, then rename) and strict image reading."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin import SpareTwinError
+
+
+def write_bytes_atomic(path: str | Path, data: bytes) -> None:
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def write_json_atomic(path: str | Path, obj) -> None:
+    write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
+
+
+def read_json(path: str | Path) -> dict:
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError:
+        raise SpareTwinError(f"{path}: no such file") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SpareTwinError(f"{path}: not valid JSON ({exc})") from None
+
+
+@contextmanager
+def atomic_dir(final: str | Path, overwrite: bool = True):
+    """Yield a temporary sibling folder; on success it replaces `final` in one rename.
+
+    On any error the temporary folder is removed and `final` is left exactly as it was.
+    """
+    final = Path(final)
+    final.parent.mkdir(parents=True, exist_ok=True)
+    if final.exists() and not overwrite:
+        raise SpareTwinError(f"{final}: already exists")
+    if final.exists() and not final.is_dir():
+        raise SpareTwinError(f"{final}: exists and is not a folder")
+    tmp = Path(tempfile.mkdtemp(dir=final.parent, prefix=f".{final.name}.", suffix=".tmp"))
+    try:
+        yield tmp
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    old = None
+    if final.exists():
+        old = final.parent / f".{final.name}.old-{os.getpid()}"
+        os.replace(final, old)
+    os.replace(tmp, final)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def read_png(path: str | Path, flags: int | None = None) -> np.ndarray:
+    """Read a PNG with OpenCV; a missing or corrupt file is a one-line SpareTwinError naming it."""
+    import cv2
+
+    path = Path(path)
+    if not path.is_file():
+        raise SpareTwinError(f"{path}: no such file")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED if flags is None else flags)
+    if img is None:
+        raise SpareTwinError(f"{path}: not a readable image (corrupt or truncated?)")
+    return img
+
+
+def encode_png(img: np.ndarray, compression: int = 1) -> bytes:
+    """PNG bytes; deterministic for the same array (no timestamps in OpenCV's PNGs)."""
+    import cv2
+
+    ok, buf = cv2.imencode(".png", img, [cv2.IMWRITE_PNG_COMPRESSION, compression])
+    if not ok:
+        raise SpareTwinError("could not encode a PNG image")
+    return buf.tobytes()
