@@ -152,7 +152,7 @@ class ChainSpec:
         if not isinstance(d, dict):
             raise SpareTwinError(f"{source}: expected a JSON object")
         known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - known - {"print_scale_note", "format"})
+        unknown = sorted(set(d) - known - {"format", "derived"})
         if unknown:
             raise SpareTwinError(f"{source}: unknown key(s) {', '.join(unknown)}")
         missing = [k for k in ("n_links", "link_lengths_m", "colors") if k not in d]
@@ -165,6 +165,8 @@ class ChainSpec:
             if "printer" in kwargs:
                 kwargs["printer"] = _sub(PrinterSpec, kwargs["printer"], f"{source}: printer")
             return cls(**kwargs)
+        except SpareTwinError as exc:
+            raise SpareTwinError(f"{source}: {exc}") from None
         except TypeError as exc:  # wrong value types from hand-written JSON
             raise SpareTwinError(f"{source}: {exc}") from None
 
@@ -252,8 +254,8 @@ def validate(spec: ChainSpec) -> None:
     for i, length_mm in enumerate(lengths_mm[1:-1], start=1):
         if length_mm < min_between_axes_mm:
             _fail("link_lengths_m", f"link {i} is {length_mm:.1f} mm between axes at this print_scale, below the {min_between_axes_mm:.1f} mm its joints need")
-    if lengths_mm[-1] < p.spacer_ring_diameter_mm / 2 + pr.min_wall_mm:
-        _fail("link_lengths_m", f"the last link ({lengths_mm[-1]:.1f} mm) is too short to hold its pin at this print_scale")
+    if lengths_mm[-1] < p.link_width_mm / 2:
+        _fail("link_lengths_m", f"the last link ({lengths_mm[-1]:.1f} mm) is shorter than half the link width at this print_scale")
     if lengths_mm[0] < p.foot_thickness_mm + p.socket_height_mm + p.link_width_mm:
         _fail("link_lengths_m", f"the base ({lengths_mm[0]:.1f} mm) is too short to stand in its foot socket at this print_scale")
     # Longest printed part: a link plate lying flat (its length plus the rounded ends).

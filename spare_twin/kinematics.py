@@ -1,0 +1,103 @@
+"""Forward kinematics and joint limits of the planar SPARE chain (physical metres, z up).
+
+The same joint layout is written into the URDF, so these functions and any URDF loader agree.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from spare_twin.config import ChainSpec
+
+JOINT_AXIS = np.array([0.0, 1.0, 0.0])
+#: Links keep this far above the foot's socket (metres), so the printed object never touches it.
+KEEPOUT_MARGIN_M = 0.002
+
+
+def joint_origin(spec: ChainSpec, k: int) -> np.ndarray:
+    """4x4 origin of joint k (1..n) in link k-1's frame (metres)."""
+    T = np.eye(4)
+    T[1, 3] = spec.layer_pitch_mm / 1000.0
+    T[2, 3] = spec.link_lengths_m[k - 1] * spec.print_scale
+    return T
+
+
+def rot_y(angle_rad: float) -> np.ndarray:
+    c, s = math.cos(angle_rad), math.sin(angle_rad)
+    T = np.eye(4)
+    T[0, 0], T[0, 2], T[2, 0], T[2, 2] = c, s, -s, c
+    return T
+
+
+def forward_kinematics(spec: ChainSpec, joint_angles_rad, T_world_base: np.ndarray | None = None) -> np.ndarray:
+    """(n + 1, 4, 4) poses of links 0..n in the world frame."""
+    angles = np.asarray(joint_angles_rad, dtype=np.float64).reshape(-1)
+    if angles.shape != (spec.n_links,):
+        raise ValueError(f"expected {spec.n_links} joint angles, got {angles.shape}")
+    out = np.empty((spec.n_links + 1, 4, 4))
+    out[0] = np.eye(4) if T_world_base is None else T_world_base
+    for k in range(1, spec.n_links + 1):
+        out[k] = out[k - 1] @ joint_origin(spec, k) @ rot_y(angles[k - 1])
+    return out
+
+
+def keepout_height_m(spec: ChainSpec) -> float:
+    """Height of the foot's socket top: moving links must stay above it (plus a margin)."""
+    return (spec.parts.foot_thickness_mm + spec.parts.socket_height_mm) / 1000.0
+
+
+def link_segment_m(spec: ChainSpec, k: int) -> tuple[float, float]:
+    """The centre line of link k's plate in its own frame, as (start, end) along +z, metres.
+
+    The plate is this segment thickened by half the link width (a stadium).
+    """
+    length = spec.link_lengths_m[k] * spec.print_scale
+    if k == spec.n_links:  # last link: the tip is at `length`, so the rounded end's centre is inside
+        return 0.0, max(length - spec.parts.link_width_mm / 2000.0, 0.0)
+    return 0.0, length
+
+
+def lowest_point_m(spec: ChainSpec, joint_angles_rad) -> float:
+    """Lowest height reached by any moving link's plate at these joint angles."""
+    poses = forward_kinematics(spec, joint_angles_rad)
+    half_width = spec.parts.link_width_mm / 2000.0
+    low = math.inf
+    for k in range(1, spec.n_links + 1):
+        a, b = link_segment_m(spec, k)
+        z_axis = poses[k][:3, 2]
+        z0 = poses[k][2, 3]
+        low = min(low, z0 + a * z_axis[2] - half_width, z0 + b * z_axis[2] - half_width)
+    return low
+
+
+def joint_limits_rad(spec: ChainSpec) -> np.ndarray:
+    """(n, 2) limits. Links share no layer, so only joint 1 needs a limit: link 1 must clear the foot.
+
+    Deeper joints can turn all the way round; whether the whole chain clears the table at a given
+    pose depends on every angle, which motion planning checks with `lowest_point_m`.
+    """
+    limits = np.tile([-math.pi, math.pi], (spec.n_links, 1))
+    _, reach = link_segment_m(spec, 1)
+    axis_height = spec.link_lengths_m[0] * spec.print_scale
+    floor = keepout_height_m(spec) + KEEPOUT_MARGIN_M + spec.parts.link_width_mm / 2000.0
+    if reach > 0 and axis_height - reach < floor:
+        # The distal end dips to axis_height + reach * cos(angle); keep it above the floor.
+        limit = math.acos(max(-1.0, min(1.0, (floor - axis_height) / reach)))
+        limits[0] = (-limit, limit)
+    return limits
+
+
+def is_clear_of_foot(spec: ChainSpec, joint_angles_rad) -> bool:
+    return lowest_point_m(spec, joint_angles_rad) >= keepout_height_m(spec) + KEEPOUT_MARGIN_M
+
+
+def sample_pose(spec: ChainSpec, rng: np.random.Generator, max_tries: int = 1000) -> np.ndarray:
+    """Uniform joint angles within the limits whose links all clear the foot (rejection sampling)."""
+    limits = joint_limits_rad(spec)
+    for _ in range(max_tries):
+        angles = rng.uniform(limits[:, 0], limits[:, 1])
+        if is_clear_of_foot(spec, angles):
+            return angles
+    return np.zeros(spec.n_links)  # standing straight up always clears the foot

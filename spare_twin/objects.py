@@ -1,0 +1,204 @@
+"""The object folder: everything `spare-twin object` writes for one chain, and its reader.
+
+    object.json          the configuration (ChainSpec) plus the derived joint layout
+    link0_base.stl ...   one binary STL per printable part, millimetres, flat for printing
+    clearance_coupon.stl a test bar for choosing the pin clearance before printing the object
+    <name>.urdf          the URDF twin whose visuals and collisions are those STLs
+    print_report.json    per part: file, bounding box, volume, watertight, checks
+    ASSEMBLY.md          print settings and assembly steps for this object
+    preview.png          the assembled object at a random pose, rendered from the URDF
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin import SpareTwinError
+from spare_twin.cad import checks
+from spare_twin.cad.export import stl_bytes, to_trimesh
+from spare_twin.cad.parts import COUPON_CLEARANCES_MM, build_parts, clearance_coupon, pin_shaft_length_mm
+from spare_twin.config import ChainSpec
+from spare_twin.io import atomic_dir, encode_png, read_json, write_bytes_atomic, write_json_atomic
+from spare_twin.kinematics import joint_limits_rad, joint_origin, keepout_height_m
+from spare_twin.urdf import build_robot, joint_name, link_name, urdf_bytes
+
+OBJECT_FORMAT = "spare-twin-object/1"
+
+
+@dataclass(frozen=True)
+class ObjectFolder:
+    """A built object folder, as the simulation and comparison stages see it."""
+
+    root: Path
+    spec: ChainSpec
+    urdf_path: Path
+
+    @property
+    def link_names(self) -> list[str]:
+        return [link_name(k) for k in range(self.spec.n_links + 1)]
+
+    @property
+    def joint_names(self) -> list[str]:
+        return [joint_name(k) for k in range(1, self.spec.n_links + 1)]
+
+    @property
+    def joint_limits_rad(self) -> np.ndarray:
+        return joint_limits_rad(self.spec)
+
+    @property
+    def keepout_height_m(self) -> float:
+        return keepout_height_m(self.spec)
+
+
+def object_json(spec: ChainSpec) -> dict:
+    limits = joint_limits_rad(spec)
+    joints = [
+        {
+            "name": joint_name(k),
+            "parent": link_name(k - 1),
+            "child": link_name(k),
+            "origin_xyz_m": joint_origin(spec, k)[:3, 3].tolist(),
+            "axis": [0.0, 1.0, 0.0],
+            "limits_rad": limits[k - 1].tolist(),
+        }
+        for k in range(1, spec.n_links + 1)
+    ]
+    derived = {
+        "link_lengths_mm": list(spec.link_lengths_mm),
+        "layer_pitch_mm": spec.layer_pitch_mm,
+        "pin_shaft_length_mm": pin_shaft_length_mm(spec.parts),
+        "keepout_height_m": keepout_height_m(spec),
+        "joints": joints,
+    }
+    return {"format": OBJECT_FORMAT, **spec.to_dict(), "derived": derived}
+
+
+def build_object(spec: ChainSpec, out_dir: str | Path, preview: bool = True, progress=None) -> ObjectFolder:
+    """Write the whole object folder atomically: on any error `out_dir` is left as it was."""
+    out_dir = Path(out_dir)
+    step = progress or (lambda what: None)
+    with atomic_dir(out_dir) as tmp:
+        step("modelling parts")
+        parts = build_parts(spec)
+        meshes = {p.name: to_trimesh(p.solid) for p in parts}
+        files = {p.name: f"{p.name}.stl" for p in parts}
+        step("writing STL files")
+        for p in parts:
+            write_bytes_atomic(tmp / files[p.name], stl_bytes(meshes[p.name]))
+        coupon = to_trimesh(clearance_coupon(spec.parts))
+        write_bytes_atomic(tmp / "clearance_coupon.stl", stl_bytes(coupon))
+
+        step("checking printability")
+        report = print_report(spec, parts, meshes, files, coupon)
+        failed = [p["file"] for p in report["parts"] if not p["passed"]]
+        if failed:
+            raise SpareTwinError(f"parts fail the print checks: {', '.join(failed)}")
+        write_json_atomic(tmp / "print_report.json", report)
+
+        step("writing URDF")
+        urdf_path = tmp / f"{spec.name}.urdf"
+        write_bytes_atomic(urdf_path, urdf_bytes(build_robot(spec, parts, meshes, files)))
+        write_json_atomic(tmp / "object.json", object_json(spec))
+        write_bytes_atomic(tmp / "ASSEMBLY.md", assembly_md(spec, report).encode())
+        if preview:
+            step("rendering preview")
+            from spare_twin.preview import render_preview
+
+            rgb = render_preview(spec, urdf_path, seed=spec.seed or 0)
+            write_bytes_atomic(tmp / "preview.png", encode_png(rgb[:, :, ::-1].copy(), compression=6))
+    return load_object(out_dir)
+
+
+def load_object(root: str | Path) -> ObjectFolder:
+    root = Path(root)
+    if not root.is_dir():
+        raise SpareTwinError(f"{root}: not a folder")
+    meta_path = root / "object.json"
+    if not meta_path.is_file():
+        raise SpareTwinError(f"{root}: not an object folder (no object.json)")
+    meta = read_json(meta_path)
+    if meta.get("format") != OBJECT_FORMAT:
+        raise SpareTwinError(f"{meta_path}: not a {OBJECT_FORMAT} file")
+    spec = ChainSpec.from_dict(meta, source=str(meta_path))
+    urdf_path = root / f"{spec.name}.urdf"
+    if not urdf_path.is_file():
+        raise SpareTwinError(f"{urdf_path}: missing")
+    for k in range(spec.n_links + 1):
+        stl = root / ("link0_base.stl" if k == 0 else f"link{k}.stl")
+        if not stl.is_file():
+            raise SpareTwinError(f"{stl}: missing")
+    return ObjectFolder(root=root, spec=spec, urdf_path=urdf_path)
+
+
+def print_report(spec, parts, meshes, files, coupon) -> dict:
+    entries = [checks.part_report(spec, p, meshes[p.name], files[p.name]) for p in parts]
+    measured = [checks.measured_pin_clearance_mm(spec, meshes, k) for k in range(1, spec.n_links + 1)]
+    walls = checks.design_walls_mm(spec)
+    min_wall = spec.printer.min_wall_mm
+    c = spec.parts.pin_clearance_mm
+    summary = {
+        "fits_bed": all(e["checks"]["fits_bed"] for e in entries),
+        "watertight": all(e["watertight"] for e in entries),
+        "min_wall": min(walls.values()) >= min_wall - 1e-9,
+        "pin_clearance": all(abs(mc - c) < 0.01 for mc in measured),
+    }
+    return {
+        "object": spec.name,
+        "print_scale": spec.print_scale,
+        "bed_mm": [spec.printer.bed_x_mm, spec.printer.bed_y_mm, spec.printer.max_height_mm],
+        "parts": entries,
+        "walls_mm": {k: round(v, 4) for k, v in walls.items()},
+        "min_wall_mm": min_wall,
+        "pin_clearance_mm": {"configured": c, "measured_per_joint": [round(x, 5) for x in measured]},
+        "coupon": {
+            "file": "clearance_coupon.stl",
+            "clearances_mm": list(COUPON_CLEARANCES_MM),
+            "bbox_mm": [round(float(x), 4) for x in coupon.bounds[1] - coupon.bounds[0]],
+            "watertight": bool(coupon.is_watertight),
+        },
+        "checks": summary,
+        "passed": all(summary.values()) and all(e["passed"] for e in entries),
+    }
+
+
+def assembly_md(spec: ChainSpec, report: dict) -> str:
+    p = spec.parts
+    lines = [
+        f"# Assembling {spec.name}",
+        "",
+        f"{spec.n_links} moving links on a base; print scale {spec.print_scale} m per paper metre.",
+        "",
+        "## Print",
+        "",
+        "PLA, 0.2 mm layers, 0.4 mm nozzle, 2 perimeters, 20 % infill, no supports. Every part lies flat",
+        "as exported; print the pins standing on their heads. First print `clearance_coupon.stl` with one",
+        f"pin: the holes are, from the notched end, {', '.join(f'{c:.2f}' for c in COUPON_CLEARANCES_MM)} mm of radial",
+        f"clearance. This object uses {p.pin_clearance_mm} mm; if the pin does not turn freely in that hole,",
+        "rebuild with `--clearance` set to the smallest hole it turns freely in.",
+        "",
+        "| file | colour | size (mm) |",
+        "|---|---|---|",
+    ]
+    for e in report["parts"]:
+        colour = spec.colors[e["link"]] if e["link"] is not None else "any"
+        lines.append(f"| {e['file']} | {colour} | {' x '.join(f'{x:.1f}' for x in e['bbox_mm'])} |")
+    lines += [
+        "",
+        "## Assemble",
+        "",
+        "1. Press `link0_base.stl` (the post) into the socket of `foot.stl` until it stands on the table.",
+        "2. For each joint k = 1, 2, ...: lay link k with its spacer ring against the face of link k-1",
+        "   that has no counterbore; push `pin_joint<k>` from the counterbore side through link k-1 into",
+        "   link k until the head sits flush in the counterbore. The pin turns in link k-1 and is held",
+        "   tight by link k (a drop of glue in link k's hole if it is loose).",
+        "3. Check that every joint turns freely through its whole range.",
+        "",
+        "Link lengths (distance between pin axes; base: table to first axis; last: axis to tip), mm:",
+        "",
+        ", ".join(f"L{i} = {x:.2f}" for i, x in enumerate(spec.link_lengths_mm)),
+        "",
+    ]
+    return "\n".join(lines)
