@@ -85,5 +85,5 @@ def run(args: argparse.Namespace) -> int:
         print(f"wrote {obj.root}/ ({len(files)} files): {spec.n_links} moving links, lengths "
               + ", ".join(f"{x:.1f}" for x in spec.link_lengths_mm) + " mm")
         print(f"  URDF {obj.urdf_path.name}; print checks {'passed' if report['passed'] else 'FAILED'}; "
-              f"see ASSEMBLY.md and preview.png")
+              "see ASSEMBLY.md" + ("" if args.no_preview else " and preview.png"))
     return 0
