@@ -112,3 +112,13 @@ def test_walls_are_at_least_the_minimum(object_dirs):
     assert outline_y - counterbore >= spec.printer.min_wall_mm
     floor = p.link_thickness_mm - (p.pin_head_height_mm + p.counterbore_extra_mm)
     assert floor >= spec.printer.min_wall_mm
+
+
+def test_parts_print_without_supports(object_dirs):
+    """No surface faces downwards anywhere above the bed: nothing overhangs, nothing needs support."""
+    for obj in (object_dirs[1], object_dirs[6]):
+        for path in sorted(obj.root.glob("*.stl")):
+            mesh = load_stl(path)
+            down = mesh.face_normals[:, 2] < -1e-6
+            heights = mesh.triangles[down][:, :, 2]
+            assert down.any() and np.abs(heights).max() < 1e-4, f"{path.name} overhangs at z = {heights.max():.2f} mm"
