@@ -1,0 +1,89 @@
+"""`spare-twin train`: train a kinematics network from a preset or a config."""
+
+from __future__ import annotations
+
+import json
+import shlex
+import sys
+
+
+def register(sub) -> None:
+    p = sub.add_parser(
+        "train",
+        help="train a link-count / link-length network from a preset or a config",
+        description="Train a network on DATA_DIR's train split (validating on its val split), writing checkpoints "
+        "(last.pt every epoch, best.pt, model.pt), history.json, learning_curve.png and MODEL_CARD.md into --out. "
+        "Interrupt at any time and continue with --resume.",
+    )
+    p.add_argument("--preset", metavar="NAME", help="a preset (see --list-presets)")
+    p.add_argument("--config", metavar="CFG_JSON", help='{"preset": NAME, "net": {...}, "train": {...}} overrides')
+    p.add_argument("--data", metavar="DATA_DIR", help="dataset folder (spare-twin dataset, or a synthetic.json folder)")
+    p.add_argument("--out", metavar="RUN_DIR", help="run folder to write")
+    p.add_argument("--epochs", type=int, help="override the preset's epochs")
+    p.add_argument("--batch-size", type=int, help="override the preset's batch size")
+    p.add_argument("--lr", type=float, help="override the preset's learning rate")
+    p.add_argument("--samples-per-epoch", type=int, help="training samples drawn per epoch (default: the preset's)")
+    p.add_argument("--seed", type=int, help="override the preset's seed (init, sample order)")
+    p.add_argument("--workers", type=int, help="DataLoader worker processes")
+    p.add_argument("--threads", type=int, help="torch CPU threads")
+    p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto: a GPU when present")
+    p.add_argument("--on-the-fly", action="store_true", help="train on freshly rendered samples (nothing stored)")
+    p.add_argument("--resume", action="store_true", help="continue the run in --out after its last completed epoch")
+    p.add_argument("--list-presets", action="store_true", help="list the presets and exit")
+    p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
+    p.set_defaults(func=run)
+
+
+def run(args) -> int:
+    from spare_twin import SpareTwinError
+    from spare_twin.io import read_json
+
+    if args.list_presets:
+        from spare_twin.nets.presets import PRESETS
+
+        rows = {n: {"description": p.description, "paper_row": p.paper_row, "paper_result": p.paper_result} for n, p in PRESETS.items()}
+        if args.json:
+            print(json.dumps(rows))
+        else:
+            for n, r in rows.items():
+                paper = f"  [paper: {r['paper_row']} = {r['paper_result']}]" if r["paper_row"] else ""
+                print(f"{n:28s} {r['description']}{paper}")
+        return 0
+    for flag in ("data", "out"):
+        if not getattr(args, flag):
+            raise SpareTwinError(f"--{flag} is required")
+    if not args.preset and not args.config:
+        raise SpareTwinError("--preset NAME or --config CFG_JSON is required (see --list-presets)")
+    from spare_twin.nets.presets import resolve
+
+    config = read_json(args.config) if args.config else {}
+    overrides = {k: v for k, v in {
+        "epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "seed": args.seed,
+        "samples_per_epoch": args.samples_per_epoch, "workers": args.workers, "threads": args.threads,
+    }.items() if v is not None}
+    if overrides:
+        config = dict(config)
+        config["train"] = {**config.get("train", {}), **overrides}
+    preset = resolve(args.preset, config, args.config or "--preset")
+    from spare_twin.nets.train import train
+
+    command = "spare-twin " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv and "train" in sys.argv else ""
+    summary = train(preset, args.data, args.out, device=args.device, on_the_fly=args.on_the_fly,
+                    resume=args.resume, command=command or _reconstruct(args), progress=True)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        print(f"wrote {summary['model']} (best epoch {summary['best_epoch']}, {summary['train_time_s']:.0f} s), "
+              f"{summary['learning_curve']}")
+    return 0
+
+
+def _reconstruct(args) -> str:
+    parts = ["spare-twin train"]
+    for flag in ("preset", "config", "data", "out", "epochs", "batch_size", "seed", "samples_per_epoch"):
+        v = getattr(args, flag)
+        if v is not None:
+            parts.append(f"--{flag.replace('_', '-')} {v}")
+    if args.on_the_fly:
+        parts.append("--on-the-fly")
+    return " ".join(parts)

@@ -1,0 +1,84 @@
+"""Where the networks get their samples: the project's dataset (spare_twin.dataset) or a synthetic
+folder (synthetic.json, see synthetic.py). Both yield the CONTRACTS.md sample dict.
+
+Stored data: ``spare_twin.dataset.torch_data.SpareDataset`` (manifest.json + HDF5 sequences).
+On the fly: ``spare_twin.dataset.torch_data.OnTheFlyDataset`` with the stored dataset's generator
+settings (so fresh samples come from the same rig and randomisation) and a seed of its own.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from spare_twin import SpareTwinError
+from spare_twin.nets.presets import NetConfig
+
+
+def _is_synthetic(data_dir: Path) -> bool:
+    return (data_dir / "synthetic.json").is_file()
+
+
+def _manifest(data_dir: Path) -> dict:
+    from spare_twin.dataset.build import load_manifest
+
+    return load_manifest(data_dir)
+
+
+def _check_dir(data_dir) -> Path:
+    data_dir = Path(data_dir)
+    if not data_dir.is_dir():
+        raise SpareTwinError(f"--data {data_dir}: no such folder")
+    return data_dir
+
+
+def open_split(data_dir, split: str, net: NetConfig):
+    """The map Dataset of one split ("train", "val", "test") for this network's mode and input."""
+    data_dir = _check_dir(data_dir)
+    if _is_synthetic(data_dir):
+        from spare_twin.nets.synthetic import SyntheticDataset, read_spec
+
+        spec = read_spec(data_dir)
+        if (spec.mode, spec.input) != (net.mode, net.input):
+            raise SpareTwinError(
+                f"--data {data_dir}: synthetic {spec.mode}/{spec.input} data, but the network wants {net.mode}/{net.input}"
+            )
+        return SyntheticDataset(spec, split)
+    if not (data_dir / "manifest.json").is_file():
+        raise SpareTwinError(f"--data {data_dir}: not a dataset (no manifest.json; make one with spare-twin dataset)")
+    from spare_twin.dataset.torch_data import SpareDataset
+
+    ds = SpareDataset(data_dir, split=split, mode=net.mode, modality=net.input)
+    if len(ds) == 0:
+        raise SpareTwinError(f"--data {data_dir}: the {split} split is empty")
+    return ds
+
+
+def open_on_the_fly(data_dir, net: NetConfig, seed: int, samples: int | None = None):
+    """An IterableDataset of freshly rendered samples (--on-the-fly), same generator as the stored data."""
+    data_dir = _check_dir(data_dir)
+    if _is_synthetic(data_dir):
+        from spare_twin.nets.synthetic import SyntheticOnTheFly, read_spec
+
+        return SyntheticOnTheFly(read_spec(data_dir), seed)
+    from spare_twin.dataset.generate import GenConfig
+    from spare_twin.dataset.torch_data import OnTheFlyDataset
+
+    m = _manifest(data_dir)
+    per_seq = 8
+    sequences = None if samples is None else -(-samples // per_seq)
+    # a seed far from the stored dataset's, so fresh sequences never repeat stored (test!) ones
+    return OnTheFlyDataset(net.mode, net.input, GenConfig.from_dict(m["generator"]), seed=10_000 + seed,
+                           sequences=sequences, samples_per_sequence=per_seq)
+
+
+def dataset_rig(data_dir) -> str | None:
+    """The rig name the data was rendered with (predict compares it with a recording's rig)."""
+    data_dir = Path(data_dir)
+    if _is_synthetic(data_dir):
+        from spare_twin.nets.synthetic import RIG_NAME
+
+        return RIG_NAME
+    try:
+        return _manifest(data_dir)["generator"]["rig"].get("name")
+    except (SpareTwinError, KeyError, AttributeError):
+        return None

@@ -1,0 +1,279 @@
+"""The networks: the paper's Conv3D and CNN-LSTM baselines, the per-count length regressors and their
+naive combination, the end-to-end regressor, and the geometry-aware voxel-fusion network.
+
+Every network takes the CONTRACTS.md sample fields as keyword tensors and returns a dict with any of
+``count_logits`` (B, 6), ``lengths`` (B, 7, paper units) and ``angles`` (B, 6, rad). `decode` turns
+those into predictions with the paper's rules (see metrics.py).
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from spare_twin.nets.geometry import voxelize
+from spare_twin.nets.presets import NetConfig
+
+N_CLASSES = 6
+SLOTS = 7
+
+
+class InputNorm(nn.Module):
+    """(x - mean) / std with constants measured on the training data, kept in the state_dict so a
+    checkpoint carries its own normalisation."""
+
+    def __init__(self):
+        super().__init__()
+        self.register_buffer("mean", torch.zeros(()))
+        self.register_buffer("std", torch.ones(()))
+
+    def forward(self, x):
+        return (x - self.mean) / self.std
+
+
+def paper_head(in_features: int, out: int, hidden: int, dropout: float) -> nn.Sequential:
+    """FC `hidden` ReLU, FC `hidden` linear, then `out` linear outputs (the paper's heads)."""
+    return nn.Sequential(
+        nn.Linear(in_features, hidden), nn.ReLU(inplace=True), nn.Dropout(dropout),
+        nn.Linear(hidden, hidden), nn.Linear(hidden, out),
+    )
+
+
+class Conv3DTrunk(nn.Module):
+    """Conv3d blocks over (stack, H, W). The first block strides 2 in space (and in time for 100-frame
+    stacks) to keep CPU cost sane; depth-wise pooling stops once the stack is collapsed."""
+
+    def __init__(self, cfg: NetConfig):
+        super().__init__()
+        layers, cin, d = [], 1, cfg.frames
+        for i, c in enumerate(cfg.channels):
+            st = ((2 if (cfg.mode == "tmp" and d >= 4) else 1), 2, 2) if i == 0 else 1
+            layers += [nn.Conv3d(cin, c, 3, stride=st, padding=1, bias=False), nn.BatchNorm3d(c), nn.ReLU(inplace=True)]
+            if i == 0:
+                d = (d + 1) // 2 if st[0] == 2 else d
+            if i < len(cfg.channels) - 1:
+                pd = 2 if d >= 2 and i > 0 else 1
+                layers.append(nn.MaxPool3d((pd, 2, 2), ceil_mode=True))
+                d = -(-d // pd)
+            cin = c
+        layers.append(nn.AdaptiveAvgPool3d((1, 3, 4)))
+        self.net = nn.Sequential(*layers)
+        self.out_features = cfg.channels[-1] * 12
+
+    def forward(self, x):  # x (B, F, H, W)
+        return self.net(x.unsqueeze(1)).flatten(1)
+
+
+class FrameCNN(nn.Module):
+    """2D CNN shared by every view / frame -> a `frame_features` embedding."""
+
+    def __init__(self, cfg: NetConfig):
+        super().__init__()
+        layers, cin = [], 1
+        for i, c in enumerate(cfg.channels):
+            layers += [nn.Conv2d(cin, c, 3, stride=2 if i == 0 else 1, padding=1, bias=False), nn.BatchNorm2d(c), nn.ReLU(inplace=True)]
+            if i < len(cfg.channels) - 1:
+                layers.append(nn.MaxPool2d(2, ceil_mode=True))
+            cin = c
+        layers += [nn.AdaptiveAvgPool2d((3, 4)), nn.Flatten(), nn.Linear(cfg.channels[-1] * 12, cfg.frame_features), nn.ReLU(inplace=True)]
+        self.net = nn.Sequential(*layers)
+
+    def forward(self, x):  # (N, H, W)
+        return self.net(x.unsqueeze(1))
+
+
+class Conv3DNet(nn.Module):
+    """The paper's Conv3D network: counter (6 logits) or end-to-end / length regressor (`out` slots)."""
+
+    def __init__(self, cfg: NetConfig, out: int, key: str):
+        super().__init__()
+        self.norm = InputNorm()
+        self.trunk = Conv3DTrunk(cfg)
+        self.head = paper_head(self.trunk.out_features, out, cfg.fc_hidden, cfg.dropout)
+        self.key = key
+
+    def forward(self, x, **_):
+        return {self.key: self.head(self.trunk(self.norm(x)))}
+
+
+class CNNLSTMNet(nn.Module):
+    """The paper's CNN-LSTM counter: a shared CNN per view / frame, an LSTM (64 hidden units) over the
+    sequence, the last hidden state to the count logits."""
+
+    def __init__(self, cfg: NetConfig, out: int = N_CLASSES, key: str = "count_logits"):
+        super().__init__()
+        self.norm = InputNorm()
+        self.cnn = FrameCNN(cfg)
+        self.lstm = nn.LSTM(cfg.frame_features, cfg.lstm_hidden, batch_first=True)
+        self.head = nn.Sequential(nn.Dropout(cfg.dropout), nn.Linear(cfg.lstm_hidden, out))
+        self.key = key
+
+    def forward(self, x, **_):
+        B, F, H, W = x.shape
+        f = self.cnn(self.norm(x).reshape(B * F, H, W)).reshape(B, F, -1)
+        _, (h, _) = self.lstm(f)
+        return {self.key: self.head(h[-1])}
+
+
+def _pad_slots(y: torch.Tensor) -> torch.Tensor:
+    return torch.nn.functional.pad(y, (0, SLOTS - y.shape[1]))
+
+
+class PerCountRegressors(nn.Module):
+    """The paper's length regressors: one Conv3D network per link count n, each with n + 1 outputs.
+    A sample goes through the network of its (known or predicted) count only."""
+
+    def __init__(self, cfg: NetConfig):
+        super().__init__()
+        self.nets = nn.ModuleList(Conv3DNet(cfg, n + 1, "lengths") for n in range(1, N_CLASSES + 1))
+
+    def forward(self, x, n_links=None, **_):
+        if n_links is None:
+            raise ValueError("per-count regressors need n_links (known or predicted)")
+        out = x.new_zeros(x.shape[0], SLOTS)
+        for n in torch.unique(n_links).tolist():
+            sel = n_links == n
+            out[sel] = _pad_slots(self.nets[n - 1](x[sel])["lengths"])
+        return {"lengths": out}
+
+
+class NaiveCombination(nn.Module):
+    """The paper's naive end-to-end system: the counter decides n, that n's regressor measures.
+    Trained jointly here (both losses), the regressors routed by the true n during training."""
+
+    def __init__(self, cfg: NetConfig):
+        super().__init__()
+        self.counter = Conv3DNet(cfg, N_CLASSES, "count_logits")
+        self.regressors = PerCountRegressors(cfg)
+
+    def forward(self, x, n_links=None, **_):
+        out = self.counter(x)
+        route = n_links if n_links is not None else out["count_logits"].argmax(1) + 1
+        out.update(self.regressors(x, n_links=route))
+        return out
+
+
+class GeoVoxelNet(nn.Module):
+    """This project's network: depth views fused into a world-frame voxel grid (paper units) through
+    the known camera geometry, then a small 3D CNN and multi-task heads.
+
+    Because links sit in their own layers along the joint axes, the grid shows each link as a separate
+    slab; counting becomes counting slabs and a length becomes a slab's extent, both in the unit E_L
+    uses. Temporal input puts `grid.time_bins` evenly spaced frames in separate channels.
+    """
+
+    def __init__(self, cfg: NetConfig):
+        super().__init__()
+        self.cfg = cfg
+        self.grid = cfg.grid
+        cin = cfg.grid.time_bins if cfg.mode == "tmp" else 1
+        ch = cfg.channels
+        layers = [nn.Conv3d(cin, ch[0], 3, padding=1, bias=False), nn.BatchNorm3d(ch[0]), nn.ReLU(inplace=True)]
+        for a, b in zip(ch, ch[1:]):
+            layers += [
+                nn.Conv3d(a, b, 3, stride=2, padding=1, bias=False), nn.BatchNorm3d(b), nn.ReLU(inplace=True),
+                nn.Conv3d(b, b, 3, padding=1, bias=False), nn.BatchNorm3d(b), nn.ReLU(inplace=True),
+            ]
+        # squeeze channels before flattening: position matters (heights, extents), so no global pool
+        layers += [nn.Conv3d(ch[-1], 32, 1), nn.ReLU(inplace=True)]
+        self.cnn = nn.Sequential(*layers)
+        nx, ny, nz = cfg.grid.cells
+        for _ in ch[1:]:
+            nx, ny, nz = (nx + 1) // 2, (ny + 1) // 2, (nz + 1) // 2
+        self.fc = nn.Sequential(nn.Flatten(), nn.Linear(32 * nx * ny * nz, cfg.fc_hidden), nn.ReLU(inplace=True), nn.Dropout(cfg.dropout))
+        self.heads = nn.ModuleDict()
+        if cfg.task in ("count", "multitask"):
+            self.heads["count_logits"] = nn.Linear(cfg.fc_hidden, N_CLASSES)
+        if cfg.task in ("lengths", "e2e", "multitask"):
+            self.heads["lengths"] = nn.Linear(cfg.fc_hidden, SLOTS)
+            # start at the label distribution's typical chain (base ~1.6, links ~0.5), not at 0:
+            # otherwise the first epoch is spent learning the mean and swamps the count loss
+            with torch.no_grad():
+                self.heads["lengths"].bias.copy_(torch.tensor([1.6, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5]))
+        if cfg.predict_angles and cfg.mode == "mv":
+            self.heads["angles"] = nn.Linear(cfg.fc_hidden, N_CLASSES)
+
+    def grid_of(self, x, K, T_world_camera, print_scale):
+        if self.cfg.mode == "tmp":
+            F = x.shape[1]
+            bins = self.grid.time_bins
+            pick = torch.linspace(0, F - 1, bins).round().long()  # evenly spaced frames
+            x = x[:, pick]
+            return voxelize(x, K, T_world_camera, print_scale, self.grid, torch.arange(bins), bins)
+        return voxelize(x, K, T_world_camera, print_scale, self.grid)
+
+    def forward(self, x, K=None, T_world_camera=None, print_scale=None, **_):
+        if K is None or T_world_camera is None or print_scale is None:
+            raise ValueError("geo_voxel needs K, T_world_camera and print_scale")
+        with torch.no_grad():
+            g = self.grid_of(x, K, T_world_camera, print_scale)
+        h = self.fc(self.cnn(g))
+        return {k: head(h) for k, head in self.heads.items()}
+
+
+def build_model(cfg: NetConfig) -> nn.Module:
+    if cfg.arch == "geo_voxel":
+        return GeoVoxelNet(cfg)
+    if cfg.arch == "conv3d_per_n":
+        return PerCountRegressors(cfg)
+    if cfg.arch == "naive":
+        return NaiveCombination(cfg)
+    if cfg.task not in ("count", "e2e"):
+        raise ValueError(f"{cfg.arch} supports tasks count and e2e (got {cfg.task})")
+    out, key = (N_CLASSES, "count_logits") if cfg.task == "count" else (SLOTS, "lengths")
+    return (Conv3DNet if cfg.arch == "conv3d" else CNNLSTMNet)(cfg, out, key)
+
+
+def input_norms(model: nn.Module) -> list[InputNorm]:
+    return [m for m in model.modules() if isinstance(m, InputNorm)]
+
+
+def model_inputs(batch: dict, device) -> dict:
+    """The tensors a network reads from a CONTRACTS.md batch, on `device`."""
+    out = {"x": batch["x"].to(device, torch.float32)}
+    for k in ("K", "T_world_camera", "print_scale"):
+        if k in batch:
+            out[k] = batch[k].to(device, torch.float32)
+    return out
+
+
+def slots_to_count(lengths: torch.Tensor, threshold: float) -> torch.Tensor:
+    """e2e rule: the chain ends at the first moving-link slot shorter than `threshold` (n in 1..6)."""
+    short = lengths[:, 1:] < threshold
+    first_short = torch.where(short.any(1), short.float().argmax(1), torch.full_like(short[:, 0], 6, dtype=torch.long))
+    return first_short.clamp(1, N_CLASSES)
+
+
+def mask_after(lengths: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
+    keep = torch.arange(SLOTS, device=lengths.device)[None, :] <= n[:, None]
+    return torch.where(keep, lengths, torch.zeros_like(lengths)).clamp_min(0.0)
+
+
+@torch.no_grad()
+def decode(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.Tensor | None = None) -> dict:
+    """Predictions for one batch.
+
+    Returns ``pred_n`` (B,) and ``probabilities`` (B, 6) when the model counts; ``lengths_e2e``
+    (masked by the predicted count) when it is end-to-end capable; ``lengths_known`` (masked by the
+    true count) when lengths exist and `true_n` is given; ``angles`` when predicted.
+    """
+    res: dict = {}
+    if cfg.arch == "conv3d_per_n":
+        if true_n is not None:
+            res["lengths_known"] = mask_after(model(**inputs, n_links=true_n)["lengths"], true_n)
+        return res
+    out = model(**inputs)
+    if "count_logits" in out:
+        res["probabilities"] = torch.softmax(out["count_logits"], 1)
+        res["pred_n"] = out["count_logits"].argmax(1) + 1
+    elif "lengths" in out:  # pure e2e regressor: the count is read off the slots
+        res["pred_n"] = slots_to_count(out["lengths"], cfg.e2e_slot_threshold)
+        res["probabilities"] = torch.nn.functional.one_hot(res["pred_n"] - 1, N_CLASSES).float()
+    if "lengths" in out:
+        res["lengths_e2e"] = mask_after(out["lengths"], res["pred_n"])
+        if true_n is not None:
+            known = out["lengths"] if cfg.arch != "naive" else model(**inputs, n_links=true_n)["lengths"]
+            res["lengths_known"] = mask_after(known, true_n)
+    if "angles" in out:
+        res["angles"] = out["angles"]
+    return res

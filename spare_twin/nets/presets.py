@@ -1,0 +1,248 @@
+"""Network and training configurations, and the named presets (one per row of the paper's Table 1,
+plus the geometry-aware networks of this project).
+
+A preset is a (NetConfig, TrainConfig) pair with a name. `spare-twin train --config cfg.json` takes
+a JSON object ``{"preset": NAME, "net": {...overrides}, "train": {...overrides}}``, so any field
+below can be changed without code.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+from spare_twin import SpareTwinError
+
+ARCHS = ("conv3d", "cnn_lstm", "conv3d_per_n", "naive", "geo_voxel")
+TASKS = ("count", "lengths", "e2e", "multitask")
+INPUTS = ("depth", "grey")
+MODES = ("mv", "tmp")
+
+
+@dataclass(frozen=True)
+class GridConfig:
+    """The world-frame voxel grid the geometry-aware network fuses depth views into.
+
+    Extents are in paper units (world metres / print_scale), so the grid follows the object's scale
+    and a length read off it is already in the unit E_L is measured in. World frame: z up, table at
+    z = 0, the base's joint axes along +y (CONTRACTS.md), so the planar chain moves in x-z.
+    """
+
+    x_range: tuple[float, float] = (-1.9, 1.9)
+    """Horizontal reach of the chain: moving links sum to at most 3 - 1.3 = 1.7, plus the plate width."""
+    y_range: tuple[float, float] = (-0.8, 0.8)
+    """Across the plane of motion: the links' layers (6.4 mm pitch) and the foot."""
+    z_range: tuple[float, float] = (0.0, 3.2)
+    """Table to the highest tip: the whole chain is at most 3 long, plus the plate's half-width."""
+    cells: tuple[int, int, int] = (38, 32, 32)
+    """Voxels along x, y, z (0.1 / 0.05 / 0.1 paper units at the defaults)."""
+    table_clearance_m: float = 0.003
+    """World points below this height are the table, not the object (physical metres)."""
+    time_bins: int = 10
+    """Temporal input only: frames picked evenly from the sequence, one grid channel each, so motion
+    (which parts move together) is visible to the network."""
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """What network, for which task, on which input.
+
+    task: ``count`` (6-way classifier, class = n - 1), ``lengths`` (n known, 7-slot lengths),
+    ``e2e`` (7-slot lengths, the count read from the slots), ``multitask`` (count + 7-slot lengths
+    (+ joint angles) from one trunk; the lengths past the predicted count are zeroed).
+    """
+
+    arch: str
+    task: str
+    input: str = "depth"
+    mode: str = "mv"
+    frames: int = 8
+    """Stack depth: V = 8 views (mv) or T = 100 frames (tmp)."""
+    height: int = 96
+    width: int = 128
+    channels: tuple[int, ...] = (16, 32, 64, 64)
+    """Conv channels per block (image CNNs and the voxel CNN alike)."""
+    fc_hidden: int = 512
+    """The paper's heads: FC 512 ReLU, FC 512 linear, then the outputs."""
+    lstm_hidden: int = 64
+    frame_features: int = 128
+    """cnn_lstm: per-frame CNN embedding size fed to the LSTM."""
+    dropout: float = 0.3
+    predict_angles: bool = False
+    """multitask: also regress the joint angles (rad) of the time step (mv only)."""
+    e2e_slot_threshold: float = 0.05
+    """e2e: a slot predicted shorter than this (paper units) ends the chain. Sampled moving links are
+    never shorter than 0.3 * 3/8 = 0.11 after the paper's rescaling."""
+    grid: GridConfig = field(default_factory=GridConfig)
+
+    def __post_init__(self):
+        for name, allowed in (("arch", ARCHS), ("task", TASKS), ("input", INPUTS), ("mode", MODES)):
+            if getattr(self, name) not in allowed:
+                raise SpareTwinError(f"net.{name}: {getattr(self, name)!r} is not one of {', '.join(allowed)}")
+        if self.arch == "geo_voxel" and self.input != "depth":
+            raise SpareTwinError("net.input: geo_voxel back-projects depth; grey has no geometry")
+        if self.arch in ("conv3d_per_n",) and self.task != "lengths":
+            raise SpareTwinError("net.task: conv3d_per_n regresses lengths with n known (task lengths)")
+        if self.arch == "naive" and self.task != "e2e":
+            raise SpareTwinError("net.task: the naive counter + regressor combination is an e2e model")
+        if self.frames < 1 or self.height < 16 or self.width < 16:
+            raise SpareTwinError("net.frames/height/width: too small")
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """How to train: optimiser, schedule, data budget, loss weights."""
+
+    epochs: int = 20
+    batch_size: int = 16
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    seed: int = 0
+    samples_per_epoch: int | None = None
+    """Draw this many training samples per epoch (random, seeded by epoch); None = the whole split."""
+    val_samples: int | None = 2000
+    """Validate on at most this many validation samples (a fixed, seeded subset)."""
+    count_weight: float = 1.0
+    length_weight: float = 10.0
+    """Lengths are squared paper units (~0.01..1); this puts their loss on the count loss's scale."""
+    angle_weight: float = 1.0
+    label_smoothing: float = 0.0
+    augment_flip_views: bool = False
+    """mv image nets: randomly roll the view order (the rig is a ring), a cheap view augmentation."""
+    workers: int = 0
+    """DataLoader worker processes (0: load in the training process)."""
+    threads: int = 0
+    """torch intra-op threads (0: leave torch's default)."""
+
+
+@dataclass(frozen=True)
+class Preset:
+    """A named, documented training recipe."""
+
+    name: str
+    net: NetConfig
+    train: TrainConfig
+    description: str
+    paper_row: str | None = None
+    """The Table 1 row this reproduces (network / task / input), or None for this project's nets."""
+    paper_result: float | None = None
+    paper_metric: str | None = None
+    """``count_accuracy`` or ``E_L``."""
+
+
+def _p(name, net, train=None, description="", row=None, result=None, metric=None) -> Preset:
+    return Preset(name, net, train or TrainConfig(), description, row, result, metric)
+
+
+_TMP = dict(mode="tmp", frames=100)
+_TMP_TRAIN = TrainConfig(epochs=15, batch_size=8)
+
+PRESETS: dict[str, Preset] = {
+    p.name: p
+    for p in [
+        # --- the paper's Table 1 ------------------------------------------------------------
+        _p("conv3d-depth-tmp-count", NetConfig("conv3d", "count", "depth", **_TMP), _TMP_TRAIN,
+           "Conv3D link counter on 100 depth frames of one camera", "CONV3D-Depth-TMP / count", 0.682, "count_accuracy"),
+        _p("lstm-depth-tmp-count", NetConfig("cnn_lstm", "count", "depth", **_TMP), _TMP_TRAIN,
+           "shared per-frame CNN + LSTM(64) link counter, 100 depth frames", "LSTM-Depth-TMP / count", 0.638, "count_accuracy"),
+        _p("conv3d-depth-mv-count", NetConfig("conv3d", "count", "depth"), None,
+           "Conv3D link counter on the 8 depth views of one time step", "CONV3D-Depth-MV / count", 0.949, "count_accuracy"),
+        _p("lstm-depth-mv-count", NetConfig("cnn_lstm", "count", "depth"), None,
+           "shared per-view CNN + LSTM(64) link counter, 8 depth views", "LSTM-Depth-MV / count", 0.956, "count_accuracy"),
+        _p("conv3d-grey-tmp-count", NetConfig("conv3d", "count", "grey", **_TMP), _TMP_TRAIN,
+           "Conv3D link counter on 100 grey frames", "CONV3D-Grey-TMP / count", 0.559, "count_accuracy"),
+        _p("lstm-grey-mv-count", NetConfig("cnn_lstm", "count", "grey"), None,
+           "shared per-view CNN + LSTM(64) link counter, 8 grey views", "LSTM-Grey-MV / count", 0.891, "count_accuracy"),
+        _p("conv3d-depth-tmp-lengths", NetConfig("conv3d_per_n", "lengths", "depth", **_TMP), _TMP_TRAIN,
+           "six Conv3D length regressors, one per link count (n known), 100 depth frames",
+           "CONV3D-Depth-TMP / lengths, n known", 6.64, "E_L"),
+        _p("conv3d-depth-mv-lengths", NetConfig("conv3d_per_n", "lengths", "depth"), None,
+           "six Conv3D length regressors, one per link count (n known), 8 depth views",
+           "CONV3D-Depth-MV / lengths, n known", 0.543, "E_L"),
+        _p("conv3d-depth-tmp-e2e", NetConfig("conv3d", "e2e", "depth", **_TMP), _TMP_TRAIN,
+           "Conv3D end-to-end: the 7-slot length label directly, 100 depth frames",
+           "CONV3D-Depth-TMP / end-to-end", 14.8, "E_L"),
+        _p("conv3d-depth-mv-e2e", NetConfig("conv3d", "e2e", "depth"), None,
+           "Conv3D end-to-end: the 7-slot length label directly, 8 depth views",
+           "CONV3D-Depth-MV / end-to-end", 0.415, "E_L"),
+        _p("conv3d-depth-mv-naive", NetConfig("naive", "e2e", "depth"), None,
+           "the paper's naive combination: the Conv3D counter picks which per-n regressor measures"),
+        _p("conv3d-depth-tmp-naive", NetConfig("naive", "e2e", "depth", **_TMP), _TMP_TRAIN,
+           "naive combination (counter + per-n regressors), 100 depth frames"),
+        # --- this project's geometry-aware networks -----------------------------------------
+        _p("geo-depth-mv-multitask",
+           NetConfig("geo_voxel", "multitask", "depth", channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1,
+                     predict_angles=True),
+           TrainConfig(epochs=15, batch_size=16, lr=2e-3, samples_per_epoch=4000),
+           "the 8 depth views back-projected through the rig's poses into one world-frame voxel grid "
+           "(paper units); a small 3D CNN predicts count, 7-slot lengths and joint angles"),
+        _p("geo-depth-mv-count",
+           NetConfig("geo_voxel", "count", "depth", channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1),
+           TrainConfig(epochs=15, batch_size=16, lr=2e-3, samples_per_epoch=4000),
+           "voxel-fusion counter (8 depth views)"),
+        _p("geo-depth-tmp-multitask",
+           NetConfig("geo_voxel", "multitask", "depth", channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1,
+                     **_TMP),
+           TrainConfig(epochs=15, batch_size=16, lr=2e-3),
+           "one camera's 100 frames back-projected into the world grid, 10 evenly spaced frames as "
+           "channels (motion shows which parts move together); count + 7-slot lengths"),
+    ]
+}
+
+
+def get_preset(name: str) -> Preset:
+    if name not in PRESETS:
+        raise SpareTwinError(f"--preset: unknown preset {name!r} (see --list-presets): {', '.join(PRESETS)}")
+    return PRESETS[name]
+
+
+def _replace(obj, overrides: dict, where: str):
+    if not isinstance(overrides, dict):
+        raise SpareTwinError(f"{where}: expected a JSON object")
+    fields = {f.name: f for f in dataclasses.fields(obj)}
+    kwargs = {}
+    for k, v in overrides.items():
+        if k not in fields:
+            raise SpareTwinError(f"{where}: unknown key {k!r}")
+        cur = getattr(obj, k)
+        if dataclasses.is_dataclass(cur):
+            v = _replace(cur, v, f"{where}.{k}")
+        elif isinstance(cur, tuple) and isinstance(v, list):
+            v = tuple(tuple(x) if isinstance(x, list) else x for x in v)
+        kwargs[k] = v
+    try:
+        return dataclasses.replace(obj, **kwargs)
+    except TypeError as exc:
+        raise SpareTwinError(f"{where}: {exc}") from None
+
+
+def net_from_dict(d: dict, where: str = "net") -> NetConfig:
+    """Rebuild a NetConfig from its asdict() form (checkpoints)."""
+    d = dict(d)
+    grid = GridConfig(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.pop("grid", {}).items()})
+    d = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+    try:
+        return NetConfig(grid=grid, **d)
+    except TypeError as exc:
+        raise SpareTwinError(f"{where}: {exc}") from None
+
+
+def train_from_dict(d: dict, where: str = "train") -> TrainConfig:
+    try:
+        return TrainConfig(**d)
+    except TypeError as exc:
+        raise SpareTwinError(f"{where}: {exc}") from None
+
+
+def resolve(preset: str | None, config: dict | None, source: str = "--config") -> Preset:
+    """A preset, with the overrides of a --config JSON object applied."""
+    config = dict(config or {})
+    name = config.pop("preset", None) or preset
+    if name is None:
+        raise SpareTwinError(f"{source}: name a base preset (--preset NAME or \"preset\" in the file)")
+    base = get_preset(name)
+    net = _replace(base.net, config.pop("net", {}), f"{source}: net")
+    train = _replace(base.train, config.pop("train", {}), f"{source}: train")
+    if config:
+        raise SpareTwinError(f"{source}: unknown key(s) {', '.join(sorted(config))} (expected preset, net, train)")
+    return dataclasses.replace(base, net=net, train=train)

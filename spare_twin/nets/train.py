@@ -1,0 +1,275 @@
+"""Training: seeded, checkpointed every epoch (atomically), resumable, with a learning curve.
+
+RUN_DIR gets ``last.pt`` (full state: model, optimiser, epoch, history, RNG), ``best.pt`` /
+``model.pt`` (the best epoch on validation, lean, with metadata), ``history.json``,
+``learning_curve.png`` and ``MODEL_CARD.md``.
+
+Determinism: the model is initialised from ``torch.manual_seed(seed)``; each epoch's sample order
+comes from a generator seeded with (seed, epoch), so a resumed run sees the same batches as an
+uninterrupted one; the global RNG (dropout) is restored from ``last.pt``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch import nn
+
+from spare_twin import SpareTwinError
+from spare_twin.io import write_json_atomic
+from spare_twin.nets import checkpoint as ckpt
+from spare_twin.nets import metrics
+from spare_twin.nets.data import dataset_rig, open_on_the_fly, open_split
+from spare_twin.nets.models import build_model, decode, input_norms, model_inputs
+from spare_twin.nets.presets import NetConfig, Preset, TrainConfig
+
+
+def pick_device(name: str = "auto") -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise SpareTwinError("--device cuda: no CUDA device here")
+    if name not in ("cpu", "cuda"):
+        raise SpareTwinError(f"--device {name}: choose auto, cpu or cuda")
+    return torch.device(name)
+
+
+def compute_loss(net: NetConfig, tr: TrainConfig, out: dict, batch: dict, device) -> torch.Tensor:
+    """The task's loss. Lengths: squared error summed over the slots the true count uses (E_L's
+    shape), except the paper's plain e2e regressor, which regresses all 7 zero-padded slots."""
+    n = batch["n_links"].to(device)
+    loss = torch.zeros((), device=device)
+    if "count_logits" in out:
+        loss = loss + tr.count_weight * nn.functional.cross_entropy(out["count_logits"], n - 1, label_smoothing=tr.label_smoothing)
+    if "lengths" in out:
+        target = batch["lengths_m"].to(device, torch.float32)
+        err = (out["lengths"] - target) ** 2
+        if not (net.task == "e2e" and net.arch == "conv3d" or net.arch == "cnn_lstm"):
+            err = err * (torch.arange(7, device=device)[None] <= n[:, None])
+        loss = loss + tr.length_weight * err.sum(1).mean()
+    if "angles" in out and "joint_angles_rad" in batch:
+        ang = batch["joint_angles_rad"].to(device, torch.float32)
+        if ang.dim() == 2:
+            mask = torch.arange(6, device=device)[None] < n[:, None]
+            loss = loss + tr.angle_weight * (((out["angles"] - ang) ** 2) * mask).sum(1).mean()
+    return loss
+
+
+def forward_train(model, net: NetConfig, batch: dict, device) -> dict:
+    inputs = model_inputs(batch, device)
+    if net.arch in ("conv3d_per_n", "naive"):  # regressors are routed by the true count in training
+        return model(**inputs, n_links=batch["n_links"].to(device))
+    return model(**inputs)
+
+
+@torch.no_grad()
+def measure_normalization(model, ds, seed: int, samples: int = 64) -> None:
+    """Input mean / std over a few training samples, stored in the model's InputNorm buffers."""
+    norms = input_norms(model)
+    if not norms:
+        return
+    idx = torch.randperm(len(ds), generator=torch.Generator().manual_seed(seed))[:samples].tolist()
+    xs = torch.stack([ds[i]["x"].float() for i in idx])
+    mean, std = xs.mean(), xs.std().clamp_min(1e-6)
+    for m in norms:
+        m.mean.fill_(mean)
+        m.std.fill_(std)
+
+
+@torch.no_grad()
+def run_inference(model, net: NetConfig, ds, device, batch_size: int, indices=None, desc: str = "eval", progress=True) -> dict:
+    """Predictions and labels over (a subset of) a dataset: numpy arrays for metrics.py."""
+    from tqdm import tqdm
+
+    model.eval()
+    sub = ds if indices is None else torch.utils.data.Subset(ds, indices)
+    loader = torch.utils.data.DataLoader(sub, batch_size=batch_size, shuffle=False)
+    acc: dict[str, list] = {}
+    for batch in tqdm(loader, desc=desc, leave=False, file=sys.stderr, disable=not progress):
+        n = batch["n_links"].to(device)
+        res = decode(model, net, model_inputs(batch, device), true_n=n)
+        res["true_n"] = n
+        res["true_lengths"] = batch["lengths_m"]
+        for k, v in res.items():
+            acc.setdefault(k, []).append(v.detach().cpu().numpy())
+    return {k: np.concatenate(v) for k, v in acc.items()}
+
+
+def summarize(pred: dict) -> dict:
+    """The paper's metrics from run_inference output (None where the model does not predict it)."""
+    out: dict = {"instances": int(len(pred["true_n"]))}
+    out["count_accuracy"] = metrics.count_accuracy(pred["true_n"], pred["pred_n"]) if "pred_n" in pred else None
+    e2e = known = None
+    if "lengths_e2e" in pred:
+        e2e = metrics.length_errors(pred["true_lengths"], pred["lengths_e2e"], pred["true_n"], pred["pred_n"])
+    if "lengths_known" in pred:
+        known = metrics.length_errors(pred["true_lengths"], pred["lengths_known"], pred["true_n"])
+    # E_L: the end-to-end number where the model can give one, else the n-known one.
+    main = e2e if e2e is not None else known
+    out["E_L"] = float(main.mean()) if main is not None else None
+    out["E_L_end_to_end"] = float(e2e.mean()) if e2e is not None else None
+    out["E_L_n_known"] = float(known.mean()) if known is not None else None
+    out["per_n"] = metrics.per_n_breakdown(pred["true_n"], pred.get("pred_n"), main)
+    return out
+
+
+def _score(m: dict) -> float:
+    s = 0.0
+    if m.get("count_accuracy") is not None:
+        s += m["count_accuracy"]
+    if m.get("E_L") is not None:
+        s -= m["E_L"]
+    return s
+
+
+def _epoch_indices(n_data: int, tr: TrainConfig, epoch: int) -> list[int]:
+    g = torch.Generator().manual_seed(tr.seed * 100_003 + epoch)
+    if tr.samples_per_epoch is None:
+        return torch.randperm(n_data, generator=g).tolist()
+    k = tr.samples_per_epoch
+    if k <= n_data:
+        return torch.randperm(n_data, generator=g)[:k].tolist()
+    return torch.randint(0, n_data, (k,), generator=g).tolist()
+
+
+def train(
+    preset: Preset,
+    data_dir,
+    out_dir,
+    device: str = "auto",
+    on_the_fly: bool = False,
+    resume: bool = False,
+    command: str = "",
+    progress: bool = True,
+) -> dict:
+    from tqdm import tqdm
+
+    net, tr = preset.net, preset.train
+    out_dir = Path(out_dir)
+    dev = pick_device(device)
+    if tr.threads:
+        torch.set_num_threads(tr.threads)
+    last_path = out_dir / "last.pt"
+    if resume and not last_path.is_file():
+        raise SpareTwinError(f"--resume: {last_path} does not exist (nothing to resume)")
+    if not resume and last_path.exists():
+        raise SpareTwinError(f"--out {out_dir}: already holds a run (use --resume to continue it, or another --out)")
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    torch.manual_seed(tr.seed)
+    np.random.seed(tr.seed)
+    model = build_model(net).to(dev)
+    stored_train = open_split(data_dir, "train", net)
+    train_src = stored_train  # with --on-the-fly, fresh samples are drawn per epoch below
+    try:
+        val_ds = open_split(data_dir, "val", net)
+    except SpareTwinError:
+        val_ds = None  # a folder without a validation split: select on the training loss instead
+    opt = torch.optim.AdamW(model.parameters(), lr=tr.lr, weight_decay=tr.weight_decay)
+    meta = ckpt.new_meta(data_dir, dataset_rig(data_dir), tr.seed, command)
+    meta["parameters"] = int(sum(p.numel() for p in model.parameters()))
+    meta["on_the_fly"] = bool(on_the_fly)
+    history: list[dict] = []
+    start_epoch, best_score, train_time_s = 0, -math.inf, 0.0
+
+    if resume:
+        state = ckpt.load(last_path, dev)
+        if state.get("preset") != preset.name or state.get("net") != ckpt.model_record(preset.name, net, tr, model, {})["net"]:
+            raise SpareTwinError(f"--resume: {last_path} was trained with a different network configuration")
+        model.load_state_dict(state["state_dict"])
+        opt.load_state_dict(state["optimizer"])
+        torch.set_rng_state(state["rng"])
+        history, start_epoch = state["history"], state["epoch"] + 1
+        best_score, train_time_s = state["best_score"], state["train_time_s"]
+        meta = state["meta"]
+    else:
+        measure_normalization(model, stored_train, tr.seed)
+
+    val_idx = None
+    if val_ds is not None and tr.val_samples is not None and tr.val_samples < len(val_ds):
+        val_idx = torch.randperm(len(val_ds), generator=torch.Generator().manual_seed(tr.seed + 1))[: tr.val_samples].tolist()
+
+    for epoch in range(start_epoch, tr.epochs):
+        t0 = time.time()
+        lr = tr.lr * 0.5 * (1 + math.cos(math.pi * epoch / tr.epochs))  # cosine, recomputed: resume-safe
+        for g in opt.param_groups:
+            g["lr"] = lr
+        if on_the_fly:
+            n_ep = tr.samples_per_epoch or len(stored_train)
+            src = open_on_the_fly(data_dir, net, tr.seed * 100_003 + epoch, n_ep)
+            loader = torch.utils.data.DataLoader(src, batch_size=tr.batch_size, num_workers=tr.workers)
+            n_batches = math.ceil(n_ep / tr.batch_size)
+        else:
+            idx = _epoch_indices(len(train_src), tr, epoch)
+            loader = torch.utils.data.DataLoader(torch.utils.data.Subset(train_src, idx), batch_size=tr.batch_size,
+                                                 shuffle=False, num_workers=tr.workers, drop_last=len(idx) > tr.batch_size)
+            n_batches = len(loader)
+        model.train()
+        losses = []
+        bar = tqdm(total=n_batches, desc=f"epoch {epoch + 1}/{tr.epochs}", file=sys.stderr, disable=not progress, leave=False)
+        for b, batch in enumerate(loader):
+            if b >= n_batches:
+                break
+            if batch["x"].shape[0] < 2 and any(isinstance(m, nn.modules.batchnorm._BatchNorm) for m in model.modules()):
+                continue  # BatchNorm cannot train on a batch of one
+            out = forward_train(model, net, batch, dev)
+            loss = compute_loss(net, tr, out, batch, dev)
+            opt.zero_grad(set_to_none=True)
+            loss.backward()
+            nn.utils.clip_grad_norm_(model.parameters(), 5.0)
+            opt.step()
+            losses.append(float(loss.detach()))
+            bar.update(1)
+            bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
+        bar.close()
+        train_time_s += time.time() - t0
+        row = {"epoch": epoch + 1, "lr": lr, "train_loss": float(np.mean(losses)) if losses else None, "time_s": time.time() - t0}
+        if val_ds is not None:
+            pred = run_inference(model, net, val_ds, dev, tr.batch_size, val_idx, "validate", progress)
+            m = summarize(pred)
+            row.update({f"val_{k}": v for k, v in m.items() if k != "per_n" and v is not None and k != "instances"})
+            score = _score(m)
+        else:
+            score = -(row["train_loss"] or 0.0)
+        history.append(row)
+        meta.update(epochs_trained=epoch + 1, train_time_s=train_time_s)
+        if score > best_score:
+            best_score = score
+            best = ckpt.model_record(preset.name, net, tr, model, dict(meta, best_epoch=epoch + 1,
+                                     val_metrics={k: v for k, v in row.items() if k.startswith("val_")}))
+            ckpt.save(out_dir / "best.pt", best)
+        state = ckpt.model_record(preset.name, net, tr, model, meta)
+        state.update(optimizer=opt.state_dict(), epoch=epoch, history=history, rng=torch.get_rng_state(),
+                     best_score=best_score, train_time_s=train_time_s)
+        ckpt.save(last_path, state)  # written last: a crash before here repeats this epoch on resume
+        write_json_atomic(out_dir / "history.json", history)
+        metrics.write_learning_curve_png(history, out_dir / "learning_curve.png", preset.name)
+        shown = {k: round(v, 4) for k, v in row.items() if k in ("train_loss", "val_count_accuracy", "val_E_L") and v is not None}
+        print(f"epoch {epoch + 1}/{tr.epochs} {json.dumps(shown)} ({row['time_s']:.0f} s)", file=sys.stderr)
+
+    # model.pt: the best epoch, with the final training time in its metadata
+    best = ckpt.load(out_dir / "best.pt")
+    best["meta"].update(train_time_s=train_time_s, epochs_trained=len(history))
+    ckpt.save(out_dir / "model.pt", best)
+    ckpt.write_card(out_dir / "model.pt", out_dir / "MODEL_CARD.md", preset.name)
+    return {
+        "run_dir": str(out_dir),
+        "model": str(out_dir / "model.pt"),
+        "preset": preset.name,
+        "epochs": len(history),
+        "best_epoch": best["meta"].get("best_epoch"),
+        "train_time_s": round(train_time_s, 1),
+        "val": best["meta"].get("val_metrics", {}),
+        "learning_curve": str(out_dir / "learning_curve.png"),
+    }
+
+
+def copy_run_model(run_dir, dst) -> None:
+    shutil.copyfile(Path(run_dir) / "model.pt", dst)

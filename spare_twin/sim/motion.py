@@ -1,0 +1,97 @@
+"""Random smooth joint motion within the joint limits that keeps every link above the keep-out height.
+
+Each joint follows a sum of a few random sinusoids (smooth, with velocities a person could move the
+printed object at), mapped into its limits. Where a pose would dip a link into the foot / socket /
+table, the whole pose is pulled towards the upright home pose by a factor alpha(t) in [0, 1]; alpha
+is made smooth in time without ever exceeding the largest safe factor at any frame (a min-filter then
+a shorter averaging window: an average of values that are each below alpha*(t) stays below it).
+Links cannot collide with each other (each lies in its own layer along the joint axes), so the
+keep-out height is the only constraint besides the limits.
+
+Kinematics here are the planar chain of docs/CONTRACTS.md: joint k turns about +y, so a link at
+cumulative angle phi points along (sin phi, 0, cos phi) from its proximal axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from spare_twin import SpareTwinError
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """Parameters of the random joint motion."""
+
+    n_frames: int = 100
+    fps: float = 10.0
+    n_waves: int = 3
+    """Sinusoids summed per joint."""
+    min_freq_hz: float = 0.03
+    max_freq_hz: float = 0.25
+    """Fastest component; at 10 fps this is 40 frames per period, smooth to the eye and the network."""
+    amplitude: float = 0.9
+    """Fraction of each joint's half-range the motion may use."""
+    clearance_m: float = 0.002
+    """Extra height kept above the keep-out when choosing the pull-back factor."""
+    alpha_steps: int = 64
+    smooth_radius_frames: int = 4
+
+
+def joint_heights_m(angles_rad: np.ndarray, lengths_phys_m: np.ndarray) -> np.ndarray:
+    """Heights of the joint axes and the tip for poses (..., n): (..., n + 1), joint 1 first, tip last."""
+    phi = np.cumsum(angles_rad, axis=-1)
+    dz = np.cos(phi) * lengths_phys_m[1:]
+    return lengths_phys_m[0] + np.concatenate([np.zeros(dz.shape[:-1] + (1,)), np.cumsum(dz, axis=-1)], axis=-1)
+
+
+def lowest_point_m(angles_rad: np.ndarray, lengths_phys_m: np.ndarray, half_width_m: float) -> np.ndarray:
+    """Lowest height of any moving link plate (a plate reaches half a width past each axis; the
+    sqrt(2) covers a box plate's corners as well as a rounded one)."""
+    return joint_heights_m(angles_rad, lengths_phys_m).min(axis=-1) - np.sqrt(2.0) * half_width_m
+
+
+def random_motion(
+    limits_rad: np.ndarray,
+    lengths_phys_m: np.ndarray,
+    keepout_height_m: float,
+    half_width_m: float,
+    rng: np.random.Generator,
+    cfg: MotionConfig = MotionConfig(),
+) -> np.ndarray:
+    """(n_frames, n) joint angles: smooth, within limits, every link above the keep-out height."""
+    limits = np.asarray(limits_rad, dtype=np.float64).reshape(-1, 2)
+    lengths = np.asarray(lengths_phys_m, dtype=np.float64)
+    n = len(limits)
+    if len(lengths) != n + 1:
+        raise SpareTwinError(f"motion: {n} joints need {n + 1} link lengths, got {len(lengths)}")
+    home = np.clip(0.0, limits[:, 0], limits[:, 1])
+    if lowest_point_m(home, lengths, half_width_m) < keepout_height_m:
+        raise SpareTwinError("motion: the upright pose is already below the keep-out height")
+    t = np.arange(cfg.n_frames) / cfg.fps
+    freqs = rng.uniform(cfg.min_freq_hz, cfg.max_freq_hz, size=(n, cfg.n_waves))
+    phases = rng.uniform(0, 2 * np.pi, size=(n, cfg.n_waves))
+    amps = rng.uniform(0.2, 1.0, size=(n, cfg.n_waves))
+    waves = (amps[:, :, None] * np.sin(2 * np.pi * freqs[:, :, None] * t + phases[:, :, None])).sum(1)
+    waves /= amps.sum(1, keepdims=True)  # in [-1, 1]
+    mid, half = limits.mean(1), (limits[:, 1] - limits[:, 0]) / 2
+    raw = (mid[:, None] + cfg.amplitude * half[:, None] * waves).T  # (T, n), within limits
+
+    # Largest safe pull-back factor per frame: safe for every grid value from 0 up to it.
+    alphas = np.linspace(0.0, 1.0, cfg.alpha_steps + 1)
+    poses = home + alphas[None, :, None] * (raw - home)[:, None, :]  # (T, A, n)
+    ok = lowest_point_m(poses, lengths, half_width_m) >= keepout_height_m + cfg.clearance_m
+    first_bad = np.where(ok.all(1), len(alphas), np.argmin(ok, axis=1))
+    alpha_star = alphas[np.maximum(first_bad - 1, 0)]
+    r = cfg.smooth_radius_frames
+    padded = np.pad(alpha_star, 2 * r, mode="edge")
+    mins = np.array([padded[i : i + 4 * r + 1].min() for i in range(len(alpha_star) + 2 * r)])
+    kernel = np.hanning(2 * r + 3)[1:-1]
+    alpha = np.convolve(mins, kernel / kernel.sum(), mode="valid")
+    alpha = np.minimum(alpha, alpha_star)  # numerically a no-op; makes the guarantee explicit
+    angles = home + alpha[:, None] * (raw - home)
+    if (lowest_point_m(angles, lengths, half_width_m) < keepout_height_m).any():
+        raise AssertionError("motion: a pose dips below the keep-out height")  # guarded above
+    return angles

@@ -1,0 +1,73 @@
+"""Every preset builds and gives the outputs its task promises; the voxel front end is geometric."""
+
+import numpy as np
+import pytest
+import torch
+
+from spare_twin.nets.models import build_model, decode, slots_to_count
+from spare_twin.nets.presets import PRESETS, resolve
+
+
+def _batch(net, B=2):
+    V = net.frames
+    Kv = 1 if net.mode == "tmp" else V
+    K = torch.tensor([[125.0, 0, 63.5], [0, 125.0, 47.5], [0, 0, 1]]).expand(B, Kv, 3, 3)
+    return {"x": torch.rand(B, V, 96, 128), "K": K, "T_world_camera": torch.eye(4).expand(B, Kv, 4, 4),
+            "print_scale": torch.full((B,), 0.08)}
+
+
+@pytest.mark.parametrize("name", [n for n in PRESETS if "tmp" not in n])
+def test_presets_forward(name):
+    torch.manual_seed(0)
+    net = PRESETS[name].net
+    model = build_model(net).eval()
+    res = decode(model, net, _batch(net), true_n=torch.tensor([2, 5]))
+    if net.task in ("count", "multitask") or net.arch == "naive":
+        assert res["probabilities"].shape == (2, 6)
+        assert torch.allclose(res["probabilities"].sum(1), torch.ones(2))
+    if net.task == "lengths":
+        assert res["lengths_known"].shape == (2, 7)
+        assert (res["lengths_known"][0, 3:] == 0).all() and (res["lengths_known"][1, 6:] == 0).all()
+    if net.task in ("e2e", "multitask"):
+        n = res["pred_n"]
+        assert res["lengths_e2e"].shape == (2, 7)
+        for i in range(2):
+            assert (res["lengths_e2e"][i, int(n[i]) + 1 :] == 0).all()
+
+
+def test_every_paper_row_has_a_preset():
+    rows = {p.paper_row for p in PRESETS.values() if p.paper_row}
+    assert len(rows) == 10
+
+
+def test_e2e_count_from_slots():
+    L = torch.tensor([[1.5, 0.4, 0.3, 0.01, 0.0, 0.0, 0.0], [1.5, 0.4, 0.3, 0.3, 0.3, 0.3, 0.3], [1.5, 0.0, 0.2, 0, 0, 0, 0]])
+    assert slots_to_count(L, 0.05).tolist() == [2, 6, 1]
+
+
+def test_voxel_grid_puts_a_known_point_in_the_right_cell():
+    from spare_twin.nets.geometry import voxelize
+    from spare_twin.nets.presets import GridConfig
+
+    # camera 1 m above the origin looking straight down (x right, y down = world -y, z forward = world -z)
+    T = torch.tensor([[1.0, 0, 0, 0], [0, -1, 0, 0], [0, 0, -1, 1.0], [0, 0, 0, 1]])
+    K = torch.tensor([[100.0, 0, 64], [0, 100.0, 48], [0, 0, 1]])
+    depth = torch.zeros(1, 1, 96, 128)
+    depth[0, 0, 48, 64] = 0.84  # straight below the camera, world point (0, 0, 0.16)
+    g = GridConfig()
+    grid = voxelize(depth, K[None, None], T[None, None], torch.tensor([0.08]), g)
+    z, y, x = np.unravel_index(int(grid.argmax()), grid.shape[2:])
+    # paper units: (0, 0, 2.0) -> x cell 19 of 38 (edge), y cell 16 of 32 (edge), z cell 20 of 32
+    assert (z, y) in {(19, 15), (19, 16), (20, 15), (20, 16)} and x in (18, 19)
+    assert float(grid.sum()) > 0
+
+
+def test_config_overrides_are_checked():
+    from spare_twin import SpareTwinError
+
+    p = resolve("geo-depth-mv-count", {"net": {"channels": [8, 16]}, "train": {"epochs": 2}})
+    assert p.net.channels == (8, 16) and p.train.epochs == 2
+    with pytest.raises(SpareTwinError):
+        resolve("geo-depth-mv-count", {"net": {"bogus": 1}})
+    with pytest.raises(SpareTwinError):
+        resolve("no-such-preset", None)
