@@ -19,7 +19,7 @@ import numpy as np
 from spare_twin import SpareTwinError
 from spare_twin.cad import checks
 from spare_twin.cad.export import stl_bytes, to_trimesh
-from spare_twin.cad.parts import COUPON_CLEARANCES_MM, build_parts, clearance_coupon, pin_shaft_length_mm
+from spare_twin.cad.parts import CIRCLE_SEGMENTS, COUPON_CLEARANCES_MM, build_parts, clearance_coupon, pin_shaft_length_mm
 from spare_twin.config import ChainSpec
 from spare_twin.io import atomic_dir, encode_png, read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.kinematics import joint_limits_rad, joint_origin, keepout_height_m
@@ -52,6 +52,15 @@ class ObjectFolder:
     def keepout_height_m(self) -> float:
         return keepout_height_m(self.spec)
 
+    @property
+    def link_lengths_phys_m(self) -> np.ndarray:
+        """(n + 1,) link lengths of the printed object (metres), base first."""
+        return np.asarray(self.spec.link_lengths_m, dtype=np.float64) * self.spec.print_scale
+
+    @property
+    def link_half_width_m(self) -> float:
+        return self.spec.parts.link_width_mm / 2000.0
+
 
 def object_json(spec: ChainSpec) -> dict:
     limits = joint_limits_rad(spec)
@@ -76,18 +85,42 @@ def object_json(spec: ChainSpec) -> dict:
     return {"format": OBJECT_FORMAT, **spec.to_dict(), "derived": derived}
 
 
+#: Tessellation of the simulation's copy of the parts: the same solids with 16-gon circles, which
+#: pybullet's CPU renderer draws about twice as fast as the 64-gon printing meshes.
+SIM_CIRCLE_SEGMENTS = 16
+
+
+def _write_parts_and_urdf(spec: ChainSpec, folder: Path, circle_segments: int):
+    parts = build_parts(spec, circle_segments)
+    meshes = {p.name: to_trimesh(p.solid) for p in parts}
+    files = {p.name: f"{p.name}.stl" for p in parts}
+    for p in parts:
+        write_bytes_atomic(folder / files[p.name], stl_bytes(meshes[p.name]))
+    urdf_path = folder / f"{spec.name}.urdf"
+    write_bytes_atomic(urdf_path, urdf_bytes(build_robot(spec, parts, meshes, files)))
+    write_json_atomic(folder / "object.json", object_json(spec))
+    return parts, meshes, files
+
+
+def build_sim_twin(spec: ChainSpec, folder: str | Path, circle_segments: int = SIM_CIRCLE_SEGMENTS) -> ObjectFolder:
+    """Just what the simulation loads (object.json, STLs, URDF), with a coarser tessellation.
+
+    Use a fresh folder per object: pybullet caches URDFs and meshes by path.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    _write_parts_and_urdf(spec, folder, circle_segments)
+    return load_object(folder)
+
+
 def build_object(spec: ChainSpec, out_dir: str | Path, preview: bool = True, progress=None) -> ObjectFolder:
     """Write the whole object folder atomically: on any error `out_dir` is left as it was."""
     out_dir = Path(out_dir)
     step = progress or (lambda what: None)
     with atomic_dir(out_dir) as tmp:
         step("modelling parts")
-        parts = build_parts(spec)
-        meshes = {p.name: to_trimesh(p.solid) for p in parts}
-        files = {p.name: f"{p.name}.stl" for p in parts}
+        parts, meshes, files = _write_parts_and_urdf(spec, tmp, CIRCLE_SEGMENTS)
         step("writing STL files")
-        for p in parts:
-            write_bytes_atomic(tmp / files[p.name], stl_bytes(meshes[p.name]))
         coupon = to_trimesh(clearance_coupon(spec.parts))
         write_bytes_atomic(tmp / "clearance_coupon.stl", stl_bytes(coupon))
 
@@ -98,16 +131,13 @@ def build_object(spec: ChainSpec, out_dir: str | Path, preview: bool = True, pro
             raise SpareTwinError(f"parts fail the print checks: {', '.join(failed)}")
         write_json_atomic(tmp / "print_report.json", report)
 
-        step("writing URDF")
-        urdf_path = tmp / f"{spec.name}.urdf"
-        write_bytes_atomic(urdf_path, urdf_bytes(build_robot(spec, parts, meshes, files)))
-        write_json_atomic(tmp / "object.json", object_json(spec))
+        step("writing assembly notes")
         write_bytes_atomic(tmp / "ASSEMBLY.md", assembly_md(spec, report).encode())
         if preview:
             step("rendering preview")
             from spare_twin.preview import render_preview
 
-            rgb = render_preview(spec, urdf_path, seed=spec.seed or 0)
+            rgb = render_preview(spec, tmp / f"{spec.name}.urdf", seed=spec.seed or 0)
             write_bytes_atomic(tmp / "preview.png", encode_png(rgb[:, :, ::-1].copy(), compression=6))
     return load_object(out_dir)
 

@@ -95,14 +95,13 @@ def test_dataset_cli_errors(tmp_path, capsys):
     assert "not a dataset folder" in capsys.readouterr().err
 
 
-def test_sim2real_and_mesh_geometry(tmp_path):
+def test_sim2real_and_print_geometry(tmp_path):
     import h5py
     import numpy as np
 
     from spare_twin.sim.scene import SIM2REAL
 
-    pytest.importorskip("spare_twin.objects")
-    cfg = GenConfig(frames=2, geometry="mesh", randomization=SIM2REAL)
+    cfg = GenConfig(frames=2, geometry="print", randomization=SIM2REAL)
     generate_dataset(tmp_path / "d", 3, seed=9, workers=1, cfg=cfg, progress=False)
     with h5py.File(tmp_path / "d" / "sequences" / "seq-000002.h5") as f:
         scene = json.loads(f.attrs["scene"])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spare_twin.config import ChainSpec
-from spare_twin.sim.proxy import build_proxy
+from spare_twin.objects import build_sim_twin
 from spare_twin.sim.rig import Rig, load_rig, look_at
 from spare_twin.sim.twin import Twin, linearize_depth
 
@@ -50,7 +50,7 @@ def test_point_lands_on_the_pixel_K_predicts(wh):
 
 def test_segmentation_and_link_poses(tmp_path):
     spec = ChainSpec(n_links=3, link_lengths_m=(1.6, 0.6, 0.5, 0.4), colors=("red", "blue", "green", "yellow"))
-    obj = build_proxy(spec, tmp_path / "o")
+    obj = build_sim_twin(spec, tmp_path / "o")
     rig = Rig()
     with Twin() as twin:
         twin.load(obj)
@@ -88,7 +88,7 @@ def test_default_rig_frames_the_largest_object(tmp_path):
     # the tallest chain (sum of lengths 3 paper m) and the widest sweep stay inside every view
     spec = ChainSpec(n_links=1, link_lengths_m=(1.3, 1.7), colors=("red", "blue"))
     with Twin() as twin:
-        twin.load(build_proxy(spec, tmp_path / "o"))
+        twin.load(build_sim_twin(spec, tmp_path / "o"))
         for angle in (0.0, 1.4, -1.4):
             twin.set_joints([angle])
             for T in P:

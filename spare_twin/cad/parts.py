@@ -58,56 +58,56 @@ def _pose(R: np.ndarray, t_mm) -> np.ndarray:
     return T
 
 
-def hole(radius_mm: float, height_mm: float, z0_mm: float = -1.0) -> m3d.Manifold:
+def hole(radius_mm: float, height_mm: float, z0_mm: float = -1.0, segments: int = CIRCLE_SEGMENTS) -> m3d.Manifold:
     """A cylinder cutter whose polygon *circumscribes* the nominal circle (the hole is never smaller)."""
-    r = radius_mm / math.cos(math.pi / CIRCLE_SEGMENTS)
-    return m3d.Manifold.cylinder(height_mm, r, r, CIRCLE_SEGMENTS).translate((0.0, 0.0, z0_mm))
+    r = radius_mm / math.cos(math.pi / segments)
+    return m3d.Manifold.cylinder(height_mm, r, r, segments).translate((0.0, 0.0, z0_mm))
 
 
-def rod(radius_mm: float, height_mm: float) -> m3d.Manifold:
+def rod(radius_mm: float, height_mm: float, segments: int = CIRCLE_SEGMENTS) -> m3d.Manifold:
     """A solid cylinder whose polygon is *inscribed* in the nominal circle (never larger)."""
-    return m3d.Manifold.cylinder(height_mm, radius_mm, radius_mm, CIRCLE_SEGMENTS)
+    return m3d.Manifold.cylinder(height_mm, radius_mm, radius_mm, segments)
 
 
-def _disc(radius_mm: float, x_mm: float = 0.0) -> m3d.CrossSection:
-    return m3d.CrossSection.circle(radius_mm, CIRCLE_SEGMENTS).translate((x_mm, 0.0))
+def _disc(radius_mm: float, x_mm: float, segments: int) -> m3d.CrossSection:
+    return m3d.CrossSection.circle(radius_mm, segments).translate((x_mm, 0.0))
 
 
-def _plate_outline(p: PartDims, length_mm: float, last: bool) -> m3d.CrossSection:
+def _plate_outline(p: PartDims, length_mm: float, last: bool, segments: int) -> m3d.CrossSection:
     """Stadium from the proximal axis (x = 0) to the distal axis, or to the tip for the last link."""
     r = p.link_width_mm / 2
     end = max(length_mm - r, 0.0) if last else length_mm
-    return m3d.CrossSection.batch_hull([_disc(r), _disc(r, end)])
+    return m3d.CrossSection.batch_hull([_disc(r, 0.0, segments), _disc(r, end, segments)])
 
 
-def _distal_joint_cut(p: PartDims, x_mm: float) -> m3d.Manifold:
+def _distal_joint_cut(p: PartDims, x_mm: float, segments: int) -> m3d.Manifold:
     """Clearance hole through the plate plus the counterbore for the pin head on the top (-y) face."""
     t = p.link_thickness_mm
-    through = hole(p.pin_diameter_mm / 2 + p.pin_clearance_mm, t + 2.0)
+    through = hole(p.pin_diameter_mm / 2 + p.pin_clearance_mm, t + 2.0, segments=segments)
     depth = counterbore_depth_mm(p)
-    counterbore = hole(counterbore_diameter_mm(p) / 2, depth + 1.0, t - depth)
+    counterbore = hole(counterbore_diameter_mm(p) / 2, depth + 1.0, t - depth, segments)
     return (through + counterbore).translate((x_mm, 0.0, 0.0))
 
 
-def moving_link(p: PartDims, length_mm: float, last: bool) -> m3d.Manifold:
+def moving_link(p: PartDims, length_mm: float, last: bool, segments: int = CIRCLE_SEGMENTS) -> m3d.Manifold:
     """Link plate: press-fit hole and spacer ring at the proximal axis, pin joint at the distal axis."""
     t = p.link_thickness_mm
-    plate = _plate_outline(p, length_mm, last).extrude(t)
-    spacer = rod(p.spacer_ring_diameter_mm / 2, p.layer_gap_mm).translate((0.0, 0.0, t))
+    plate = _plate_outline(p, length_mm, last, segments).extrude(t)
+    spacer = rod(p.spacer_ring_diameter_mm / 2, p.layer_gap_mm, segments).translate((0.0, 0.0, t))
     solid = plate + spacer
-    solid -= hole(p.pin_diameter_mm / 2 + p.press_fit_mm, t + p.layer_gap_mm + 2.0)
+    solid -= hole(p.pin_diameter_mm / 2 + p.press_fit_mm, t + p.layer_gap_mm + 2.0, segments=segments)
     if not last:
-        solid -= _distal_joint_cut(p, length_mm)
+        solid -= _distal_joint_cut(p, length_mm, segments)
     return solid
 
 
-def base_post(p: PartDims, length_mm: float) -> m3d.Manifold:
+def base_post(p: PartDims, length_mm: float, segments: int = CIRCLE_SEGMENTS) -> m3d.Manifold:
     """The base: a flat-ended post from the table (x = 0) to the first joint axis (x = length)."""
     r = p.link_width_mm / 2
     outline = m3d.CrossSection.batch_hull(
-        [m3d.CrossSection.square((1e-3, p.link_width_mm)).translate((0.0, -r)), _disc(r, length_mm)]
+        [m3d.CrossSection.square((1e-3, p.link_width_mm)).translate((0.0, -r)), _disc(r, length_mm, segments)]
     )
-    return outline.extrude(p.link_thickness_mm) - _distal_joint_cut(p, length_mm)
+    return outline.extrude(p.link_thickness_mm) - _distal_joint_cut(p, length_mm, segments)
 
 
 def foot(p: PartDims) -> m3d.Manifold:
@@ -127,13 +127,13 @@ def foot(p: PartDims) -> m3d.Manifold:
     return (plate + boss) - socket
 
 
-def pin(p: PartDims, shaft_length_mm: float) -> m3d.Manifold:
+def pin(p: PartDims, shaft_length_mm: float, segments: int = CIRCLE_SEGMENTS) -> m3d.Manifold:
     """Head down on the bed, shaft up, with a small lead-in chamfer at the tip for pressing in."""
     r = p.pin_diameter_mm / 2
-    head = rod(p.pin_head_diameter_mm / 2, p.pin_head_height_mm)
+    head = rod(p.pin_head_diameter_mm / 2, p.pin_head_height_mm, segments)
     chamfer = min(0.4, r / 4)
-    shaft = rod(r, shaft_length_mm - chamfer).translate((0.0, 0.0, p.pin_head_height_mm))
-    tip = m3d.Manifold.cylinder(chamfer, r, r - chamfer, CIRCLE_SEGMENTS).translate(
+    shaft = rod(r, shaft_length_mm - chamfer, segments).translate((0.0, 0.0, p.pin_head_height_mm))
+    tip = m3d.Manifold.cylinder(chamfer, r, r - chamfer, segments).translate(
         (0.0, 0.0, p.pin_head_height_mm + shaft_length_mm - chamfer)
     )
     return head + shaft + tip
@@ -170,20 +170,25 @@ def coupon_hole_x_mm(p: PartDims, index: int) -> float:
     return (p.pin_head_diameter_mm + 4.0) * (index + 1)
 
 
-def build_parts(spec: ChainSpec) -> list[Part]:
-    """Every printable part of the object, in assembly order (base first)."""
+def build_parts(spec: ChainSpec, circle_segments: int = CIRCLE_SEGMENTS) -> list[Part]:
+    """Every printable part of the object, in assembly order (base first).
+
+    `circle_segments` only changes the tessellation: the simulation renders the same parts with
+    fewer segments, which pybullet's CPU renderer draws about twice as fast.
+    """
+    seg = circle_segments
     p = spec.parts
     lengths = spec.link_lengths_mm
     t, pitch = p.link_thickness_mm, spec.layer_pitch_mm
     plate_offset = (0.0, t / 2, 0.0)  # the plate's bed face (+y) is half a thickness from the mid-plane
     parts = [
-        Part("link0_base", "base", 0, base_post(p, lengths[0]), _pose(R_LINK_PLATE, plate_offset)),
+        Part("link0_base", "base", 0, base_post(p, lengths[0], seg), _pose(R_LINK_PLATE, plate_offset)),
         Part("foot", "foot", 0, foot(p), np.eye(4)),
     ]
     shaft = pin_shaft_length_mm(p)
     for k in range(1, spec.n_links + 1):
         last = k == spec.n_links
-        parts.append(Part(f"link{k}", "link", k, moving_link(p, lengths[k], last), _pose(R_LINK_PLATE, plate_offset)))
+        parts.append(Part(f"link{k}", "link", k, moving_link(p, lengths[k], last, seg), _pose(R_LINK_PLATE, plate_offset)))
         # The pin head's outer face is flush with the parent's -y face, one pitch behind this link.
-        parts.append(Part(f"pin_joint{k}", "pin", k, pin(p, shaft), _pose(R_LINK_PIN, (0.0, -pitch - t / 2, 0.0))))
+        parts.append(Part(f"pin_joint{k}", "pin", k, pin(p, shaft, seg), _pose(R_LINK_PIN, (0.0, -pitch - t / 2, 0.0))))
     return parts

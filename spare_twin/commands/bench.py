@@ -25,7 +25,7 @@ def register(sub) -> None:
                    help="sequences per worker, each timed raw then end to end (default: 4)")
     d.add_argument("--workers", default="1,2", help="worker counts to measure, comma-separated (default: 1,2)")
     d.add_argument("--frames", type=int, default=100, help="frames per sequence (default: 100)")
-    d.add_argument("--geometry", choices=("proxy", "mesh"), default="proxy", help="object geometry (default: proxy)")
+    d.add_argument("--geometry", choices=("sim", "print"), default="sim", help="tessellation of the parts (default: sim)")
     d.add_argument("--paper", choices=("extrapolate", "full"), default="extrapolate",
                    help="full: generate the whole paper preset (324 sequences) with the largest worker count and "
                    "time it; extrapolate (default): predict its wall time from the measured rate")
@@ -75,7 +75,7 @@ def _paired_worker(job: tuple) -> dict:
     for index in indices:
         spec = sequence_spec(seed, index)
         scene = sample_scene(rig, spec, cfg.randomization, np.random.default_rng(_seeds(seed, index)["scene"]))
-        obj = load_twin_object(cfg, spec, scene, work)
+        obj = load_twin_object(cfg, spec, work)
         twin.load(obj)
         angles = random_motion(obj.joint_limits_rad, obj.link_lengths_phys_m, obj.keepout_height_m,
                                obj.link_half_width_m, np.random.default_rng(_seeds(seed, index)["motion"]), cfg.motion())

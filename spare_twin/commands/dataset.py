@@ -22,8 +22,9 @@ def register(sub) -> None:
     p.add_argument("--workers", type=int, default=1, help="parallel rendering processes (default: 1)")
     p.add_argument("--frames", type=int, help="frames per sequence (default: 100)")
     p.add_argument("--rig", default="spare8", help="rig name in capture/rigs/ or a rig JSON file (default: spare8)")
-    p.add_argument("--geometry", choices=("proxy", "mesh"), default="proxy",
-                   help="proxy: stadium-plate twin of each chain (fast, default); mesh: build the printable CAD object")
+    p.add_argument("--geometry", choices=("sim", "print"), default="sim",
+                   help="the printed parts with circles of 16 segments (sim, default: twice as fast to render) "
+                        "or of 64 as in the printed STL files (print)")
     p.add_argument("--sim2real", action="store_true",
                    help="randomise rig pose / intrinsics, lighting, link and table colours, clutter per sequence")
     p.add_argument("--no-segmentation", action="store_true", help="do not store link segmentation images")

@@ -60,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     from spare_twin.objects import build_object
 
     spec = _spec_from_args(args)
-    steps = ["modelling parts", "writing STL files", "checking printability", "writing URDF"] + ([] if args.no_preview else ["rendering preview"])
+    steps = ["modelling parts", "writing STL files", "checking printability", "writing assembly notes"] + ([] if args.no_preview else ["rendering preview"])
     with tqdm(total=len(steps), desc="object", unit="step", file=sys.stderr, leave=False, disable=None) as bar:
         def progress(what):
             bar.set_postfix_str(what)

@@ -35,7 +35,6 @@ def run(args: argparse.Namespace) -> int:
     from spare_twin.objects import load_object
     from spare_twin.recording import Camera, RecordingWriter
     from spare_twin.sim.motion import MotionConfig, random_motion
-    from spare_twin.sim.proxy import as_twin_object
     from spare_twin.sim.rig import load_rig
     from spare_twin.sim.twin import Twin
 
@@ -43,14 +42,14 @@ def run(args: argparse.Namespace) -> int:
         raise SpareTwinError("--frames must be at least 1")
     if args.fps <= 0:
         raise SpareTwinError("--fps must be positive")
-    obj = as_twin_object(load_object(args.object_dir))
+    obj = load_object(args.object_dir)
     rig = load_rig(args.rig)
     W, H = (rig.record_width, rig.record_height) if args.resolution == "record" else (rig.width, rig.height)
     K, poses = rig.K(W, H), rig.poses()
     angles = random_motion(obj.joint_limits_rad, obj.link_lengths_phys_m, obj.keepout_height_m, obj.link_half_width_m,
                            np.random.default_rng(args.seed), MotionConfig(n_frames=args.frames, fps=args.fps))
     cameras = [Camera(name, W, H, K, poses[i]) for i, name in enumerate(rig.camera_names())]
-    source = {"kind": "sim", "sensor_model": "pybullet-tinyrenderer", "seed": args.seed, "geometry": "mesh",
+    source = {"kind": "sim", "sensor_model": "pybullet-tinyrenderer", "seed": args.seed, "geometry": "print",
               "near_m": rig.near_m, "far_m": rig.far_m}
     link_poses = np.zeros((args.frames, obj.spec.n_links + 1, 4, 4))
     with Twin() as twin, RecordingWriter(args.out, cameras, args.frames, args.fps, source,

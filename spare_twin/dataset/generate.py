@@ -23,10 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.cad.parts import CIRCLE_SEGMENTS
+from spare_twin.objects import SIM_CIRCLE_SEGMENTS, ObjectFolder, build_sim_twin
 from spare_twin.config import MAX_MOVING_LINKS, ChainSpec, sample_chain
 from spare_twin.recording import SIM_DEPTH_SCALE
 from spare_twin.sim.motion import MotionConfig, random_motion
-from spare_twin.sim.proxy import TwinObject, as_twin_object, build_proxy
 from spare_twin.sim.rig import Rig
 from spare_twin.sim.scene import DomainRandomization, Scene, sample_scene
 from spare_twin.sim.twin import Twin, projection_matrix, view_matrix
@@ -71,8 +72,9 @@ class GenConfig:
     rig: Rig = field(default_factory=Rig)
     frames: int = 100
     fps: float = 10.0
-    geometry: str = "proxy"
-    """"proxy" (the stadium-plate twin, fast) or "mesh" (the printable object's CAD meshes)."""
+    geometry: str = "sim"
+    """The printed parts as meshes: "sim" tessellates circles with 16 segments (fast to render),
+    "print" with the 64 of the STL files that get printed."""
     segmentation: bool = True
     depth_scale: float = SIM_DEPTH_SCALE
     """Metres per stored depth unit (uint16)."""
@@ -118,15 +120,14 @@ class Sequence:
     depth_scale: float
 
 
-def load_twin_object(cfg: GenConfig, spec: ChainSpec, scene: Scene, workdir: Path) -> TwinObject:
-    """Write the sequence's object into a fresh folder (pybullet caches URDFs by path)."""
-    folder = Path(tempfile.mkdtemp(dir=workdir, prefix=f"{spec.name}-"))
-    if cfg.geometry == "proxy":
-        return build_proxy(spec, folder, colors_rgb=scene.link_rgb)
-    from spare_twin.objects import build_object
+GEOMETRY_SEGMENTS = {"sim": SIM_CIRCLE_SEGMENTS, "print": CIRCLE_SEGMENTS}
 
-    shutil.rmtree(folder)
-    return as_twin_object(build_object(spec, folder, preview=False))
+
+def load_twin_object(cfg: GenConfig, spec: ChainSpec, workdir: Path) -> ObjectFolder:
+    """Write the sequence's object (its printed parts and URDF) into a fresh folder: pybullet caches
+    URDFs by path."""
+    folder = Path(tempfile.mkdtemp(dir=workdir, prefix=f"{spec.name}-"))
+    return build_sim_twin(spec, folder, GEOMETRY_SEGMENTS[cfg.geometry])
 
 
 class _DepthEncoder:
@@ -158,12 +159,12 @@ def render_sequence(cfg: GenConfig, seed: int, index: int, twin: Twin, workdir: 
     seeds = _seeds(seed, index)
     spec = sequence_spec(seed, index)
     scene = sample_scene(cfg.rig, spec, cfg.randomization, np.random.default_rng(seeds["scene"]))
-    obj = load_twin_object(cfg, spec, scene, workdir)
+    obj = load_twin_object(cfg, spec, workdir)
     try:
         twin.load(obj)
     finally:
         shutil.rmtree(obj.root, ignore_errors=True)  # pybullet has read the URDF and meshes
-    if cfg.geometry == "mesh" and scene.link_rgb is not None:
+    if scene.link_rgb is not None:
         for k, rgb in enumerate(scene.link_rgb):
             twin.p.changeVisualShape(twin.body, twin._links[k], rgbaColor=list(rgb) + [1.0], physicsClientId=twin.cid)
     twin.set_table_color(scene.table_rgba)

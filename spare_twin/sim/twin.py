@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spare_twin import SpareTwinError
-from spare_twin.sim.proxy import TwinObject
+from spare_twin.objects import ObjectFolder
 
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])  # flip y (down -> up) and z (forward -> backward)
 
@@ -111,7 +111,7 @@ class Twin:
         self.p = p
         self.cid = p.connect(p.DIRECT)
         self.body: int | None = None
-        self.obj: TwinObject | None = None
+        self.obj: ObjectFolder | None = None
         self._extra: list[int] = []
         self.table_id: int | None = None
         if table:
@@ -120,7 +120,7 @@ class Twin:
             self.table_id = p.createMultiBody(0, -1, vis, basePosition=[0, 0, -0.01], physicsClientId=self.cid)
 
     # -- scene -------------------------------------------------------------------------
-    def load(self, obj: TwinObject) -> None:
+    def load(self, obj: ObjectFolder) -> None:
         """Load an object folder's URDF (fixed base on the table), replacing any previous object."""
         p = self.p
         if self.body is not None:
