@@ -1,0 +1,16 @@
+"""Real capture: sensors and importers, rig calibration, registration, fusion, the object, Rerun view.
+
+Modules (each imports open3d / opencv / rerun only where used):
+
+- `importers`    7-Scenes / tsdf-fusion, TUM RGB-D, Open3D-recorder folders and RealSense `.bag` files
+                 into a recording (`spare_twin.recording`), keeping the sensor's depth scale.
+- `record`       live capture from an Intel RealSense through open3d.
+- `calibration`  ChArUco board: generation at true print size, detection, camera pose, depth refinement.
+- `registration` camera poses from RGB-D frames: FPFH + RANSAC, ICP, pose-graph optimisation.
+- `fusion`       TSDF fusion of a registered recording into one coloured point cloud (and mesh).
+- `segment`      table plane, object cluster, the object frame (z up, table z = 0).
+- `pipeline`     `register_recording` (poses + fusion + object, written atomically into the
+                 recording) and `fuse_recording(rec) -> (points, colors, T_world_object)`.
+- `view`         Rerun logging of a recording (cameras, colour, depth, fused cloud).
+- `bench`        `bench_registration`: accuracy and speed on the APC shelf frames.
+"""

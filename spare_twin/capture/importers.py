@@ -1,0 +1,379 @@
+"""Importers: public RGB-D layouts into a recording (`spare_twin.recording`).
+
+Layouts (`spare-twin capture import SRC --layout ...`):
+
+- ``7scenes``  7-Scenes / tsdf-fusion: ``frame-NNNNNN.color.png|jpg``, ``frame-NNNNNN.depth.png``
+  (uint16 mm; 65535 = no reading in 7-Scenes), optional ``frame-NNNNNN.pose.txt`` (4x4
+  camera-to-world), an intrinsics file (``intrinsics.K.txt`` / ``camera-intrinsics.txt``) or
+  ``--intrinsics``. Depth scale 0.001.
+- ``tum``  TUM RGB-D: ``rgb.txt`` / ``depth.txt`` (timestamp + file) with ``rgb/`` and ``depth/``,
+  associated by nearest timestamp; optional ``groundtruth.txt`` (tx ty tz qx qy qz qw). Also the bare
+  pair naming ``N.png`` + ``N_depth.png``. Depth scale 1/5000. Intrinsics from ``--intrinsics``.
+- ``open3d``  the folder Open3D's RealSense recorder / ``RSBagReader.save_frames`` writes:
+  ``color/*.jpg|png``, ``depth/*.png``, ``camera_intrinsic.json`` or ``intrinsic.json``.
+- ``bag``  a RealSense ``.bag`` file, replayed through ``open3d.t.io.RSBagReader``.
+
+Depth is copied as the sensor's own integers with the sensor's scale (never re-quantised); colour
+PNGs are copied byte for byte when already 8-bit RGB. Every frame is checked: matching colour and
+depth, equal sizes, readable images, non-empty depth and a plausible depth scale.
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin import SpareTwinError
+from spare_twin.capture.frames import K_from, check_depth, read_K_txt, read_pose_txt
+
+LAYOUTS = ("7scenes", "tum", "open3d", "bag")
+TUM_DEPTH_SCALE = 1.0 / 5000.0
+MM_DEPTH_SCALE = 0.001
+#: TUM association tolerance (seconds), as in the benchmark's associate.py.
+TUM_MAX_DT_S = 0.02
+
+
+@dataclass(frozen=True)
+class ImportOptions:
+    """User overrides for an import; None means "from the source, or the layout's default"."""
+
+    K: np.ndarray | None = None
+    """3x3 intrinsics (pixels), overriding any intrinsics file."""
+    depth_scale: float | None = None
+    """metres per depth unit, overriding the layout's default."""
+    fps: float | None = None
+    """frame rate (Hz) when the source has no timestamps (default 30)."""
+    max_frames: int | None = None
+    """import at most this many frames (after `stride`)."""
+    stride: int = 1
+    """keep every stride-th frame."""
+    progress: bool = True
+
+
+@dataclass(frozen=True)
+class FrameFiles:
+    """One source frame: its files and, where known, pose and timestamp."""
+
+    name: str
+    color: Path
+    depth: Path
+    T_world_camera: np.ndarray | None = None
+    timestamp_s: float | None = None
+
+
+@dataclass
+class Source:
+    """A listed source: frames in order plus camera and scale (before any image is read)."""
+
+    frames: list[FrameFiles]
+    K: np.ndarray | None
+    depth_scale: float
+    fps: float | None
+    sensor_model: str
+    layout: str
+    depth_invalid_value: int | None = None
+    extra: dict = field(default_factory=dict)
+
+
+# -- listing ------------------------------------------------------------------------------------
+
+def _frame_number(p: Path, pattern: re.Pattern) -> int | None:
+    m = pattern.fullmatch(p.name)
+    return int(m.group(1)) if m else None
+
+
+def list_7scenes(src: Path) -> Source:
+    color_re = re.compile(r"frame-(\d+)\.color\.(?:png|jpg)")
+    depth_re = re.compile(r"frame-(\d+)\.depth\.png")
+    colors = {n: p for p in src.iterdir() if (n := _frame_number(p, color_re)) is not None}
+    depths = {n: p for p in src.iterdir() if (n := _frame_number(p, depth_re)) is not None}
+    if not colors and not depths:
+        raise SpareTwinError(f"{src}: no frame-NNNNNN.color.png / .depth.png files (not a 7-Scenes layout?)")
+    for n in sorted(colors):
+        if n not in depths:
+            raise SpareTwinError(f"{src / colors[n].name.replace('.color.png', '.depth.png').replace('.color.jpg', '.depth.png')}: missing (colour frame {colors[n].name} has no depth)")
+    for n in sorted(depths):
+        if n not in colors:
+            raise SpareTwinError(f"{depths[n]}: extra depth frame with no matching colour frame")
+    poses = {n: src / f"frame-{n:06d}.pose.txt" for n in colors}
+    have = [n for n in sorted(colors) if poses[n].is_file()]
+    if have and len(have) != len(colors):
+        first_missing = next(n for n in sorted(colors) if not poses[n].is_file())
+        raise SpareTwinError(f"{poses[first_missing]}: missing (other frames have poses)")
+    frames = [
+        FrameFiles(f"frame-{n:06d}", colors[n], depths[n], read_pose_txt(poses[n]) if have else None)
+        for n in sorted(colors)
+    ]
+    K = None
+    for name in ("intrinsics.K.txt", "camera-intrinsics.txt", "intrinsics.txt"):
+        if (src / name).is_file():
+            K = read_K_txt(src / name)
+            break
+    # 7-Scenes marks missing depth as 65535; tsdf-fusion data uses 0. Both become 0.
+    return Source(frames, K, MM_DEPTH_SCALE, None, "unknown (7-Scenes / tsdf-fusion layout)", "7scenes",
+                  depth_invalid_value=65535)
+
+
+def _read_tum_list(path: Path) -> list[tuple[float, list[str]]]:
+    rows = []
+    for lineno, line in enumerate(path.read_text().splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        parts = line.split()
+        try:
+            rows.append((float(parts[0]), parts[1:]))
+        except (ValueError, IndexError):
+            raise SpareTwinError(f"{path}:{lineno}: expected 'timestamp value...'") from None
+    if not rows:
+        raise SpareTwinError(f"{path}: no entries")
+    return rows
+
+
+def _nearest(t: float, times: np.ndarray) -> int:
+    return int(np.argmin(np.abs(times - t)))
+
+
+def _tum_pose(values: list[str], path: Path) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    try:
+        tx, ty, tz, qx, qy, qz, qw = (float(v) for v in values[:7])
+    except ValueError:
+        raise SpareTwinError(f"{path}: expected 'timestamp tx ty tz qx qy qz qw'") from None
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([qx, qy, qz, qw]).as_matrix()  # scipy: scalar-last, like TUM
+    T[:3, 3] = (tx, ty, tz)
+    return T
+
+
+def list_tum(src: Path) -> Source:
+    rgb_txt, depth_txt = src / "rgb.txt", src / "depth.txt"
+    if not rgb_txt.is_file() and not depth_txt.is_file():
+        return _list_tum_pairs(src)
+    for p in (rgb_txt, depth_txt):
+        if not p.is_file():
+            raise SpareTwinError(f"{p}: missing (a TUM layout needs rgb.txt and depth.txt)")
+    rgb = _read_tum_list(rgb_txt)
+    depth = _read_tum_list(depth_txt)
+    d_times = np.array([t for t, _ in depth])
+    gt = None
+    if (src / "groundtruth.txt").is_file():
+        gt = _read_tum_list(src / "groundtruth.txt")
+        gt_times = np.array([t for t, _ in gt])
+    frames, used = [], set()
+    for t, (name, *_rest) in rgb:
+        j = _nearest(t, d_times)
+        if abs(d_times[j] - t) > TUM_MAX_DT_S or j in used:
+            continue  # no depth for this colour frame: TUM streams are not synchronised, skip it
+        used.add(j)
+        pose = None
+        if gt is not None:
+            k = _nearest(t, gt_times)
+            if abs(gt_times[k] - t) <= TUM_MAX_DT_S:
+                pose = _tum_pose(gt[k][1], src / "groundtruth.txt")
+        frames.append(FrameFiles(Path(name).stem, src / name, src / depth[j][1][0], pose, t))
+    if not frames:
+        raise SpareTwinError(f"{rgb_txt}: no colour frame has a depth frame within {TUM_MAX_DT_S} s")
+    for f in frames:
+        for p in (f.color, f.depth):
+            if not p.is_file():
+                raise SpareTwinError(f"{p}: missing (listed in {rgb_txt.name if p == f.color else depth_txt.name})")
+    if any(f.T_world_camera is None for f in frames) and any(f.T_world_camera is not None for f in frames):
+        n = sum(f.T_world_camera is None for f in frames)
+        print(f"warning: {src / 'groundtruth.txt'}: {n} frames have no pose within {TUM_MAX_DT_S} s; poses set to unknown",
+              file=sys.stderr)
+        frames = [FrameFiles(f.name, f.color, f.depth, None, f.timestamp_s) for f in frames]
+    return Source(frames, None, TUM_DEPTH_SCALE, None, "Microsoft Kinect v1 (TUM RGB-D)", "tum")
+
+
+def _list_tum_pairs(src: Path) -> Source:
+    depth_re = re.compile(r"(.+)_depth\.png")
+    depths = {m.group(1): p for p in src.iterdir() if (m := depth_re.fullmatch(p.name))}
+    colors = {p.stem: p for p in src.glob("*.png") if not depth_re.fullmatch(p.name)}
+    if not depths:
+        raise SpareTwinError(f"{src}: no rgb.txt/depth.txt and no N.png + N_depth.png pairs (not a TUM layout?)")
+    for k in sorted(depths):
+        if k not in colors:
+            raise SpareTwinError(f"{depths[k]}: extra depth frame with no matching colour frame {src / (k + '.png')}")
+    for k in sorted(colors):
+        if k not in depths:
+            raise SpareTwinError(f"{src / (k + '_depth.png')}: missing (colour frame {colors[k].name} has no depth)")
+
+    def order(k: str):
+        return (0, int(k), k) if k.isdigit() else (1, 0, k)
+
+    frames = [FrameFiles(k, colors[k], depths[k]) for k in sorted(colors, key=order)]
+    return Source(frames, None, TUM_DEPTH_SCALE, None, "Microsoft Kinect v1 (TUM RGB-D)", "tum")
+
+
+def list_open3d(src: Path) -> Source:
+    cdir, ddir = src / "color", src / "depth"
+    for d in (cdir, ddir):
+        if not d.is_dir():
+            raise SpareTwinError(f"{d}: missing (an Open3D recorder folder has color/ and depth/)")
+    colors = {p.stem: p for p in cdir.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")}
+    depths = {p.stem: p for p in ddir.iterdir() if p.suffix.lower() == ".png"}
+    for k in sorted(colors):
+        if k not in depths:
+            raise SpareTwinError(f"{ddir / (k + '.png')}: missing (colour frame {colors[k].name} has no depth)")
+    for k in sorted(depths):
+        if k not in colors:
+            raise SpareTwinError(f"{depths[k]}: extra depth frame with no matching colour frame")
+    if not colors:
+        raise SpareTwinError(f"{cdir}: no frames")
+    K, depth_scale, fps, model = None, MM_DEPTH_SCALE, None, "Intel RealSense (Open3D recorder)"
+    for name in ("camera_intrinsic.json", "intrinsic.json"):
+        p = src / name
+        if p.is_file():
+            from spare_twin.io import read_json
+
+            meta = read_json(p)
+            try:
+                m = np.asarray(meta["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T  # open3d: column-major
+            except (KeyError, ValueError) as exc:
+                raise SpareTwinError(f"{p}: no 3x3 intrinsic_matrix ({exc})") from None
+            K = K_from(m[0, 0], m[1, 1], m[0, 2], m[1, 2])
+            if meta.get("depth_scale"):
+                depth_scale = 1.0 / float(meta["depth_scale"])  # open3d stores units per metre
+            fps = float(meta["fps"]) if meta.get("fps") else None
+            model = str(meta.get("device_name") or model)
+            break
+    frames = [FrameFiles(k, colors[k], depths[k]) for k in sorted(colors)]
+    return Source(frames, K, depth_scale, fps, model, "open3d")
+
+
+LISTERS = {"7scenes": list_7scenes, "tum": list_tum, "open3d": list_open3d}
+
+
+# -- writing ------------------------------------------------------------------------------------
+
+def _read_color(path: Path) -> tuple[np.ndarray, bytes | None]:
+    """Decoded BGR uint8 image and, when the file is already an 8-bit RGB PNG, its bytes to copy."""
+    import cv2
+
+    data = path.read_bytes() if path.is_file() else None
+    if data is None:
+        raise SpareTwinError(f"{path}: no such file")
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise SpareTwinError(f"{path}: not a readable image (corrupt or truncated?)")
+    if img.dtype != np.uint8:
+        raise SpareTwinError(f"{path}: colour must be 8-bit, got {img.dtype}")
+    is_png = data[:8] == b"\x89PNG\r\n\x1a\n"
+    if img.ndim == 3 and img.shape[2] == 3 and is_png:
+        return img, data
+    if img.ndim == 2:
+        img = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
+    return img, None
+
+
+def _read_depth(path: Path, invalid_value: int | None) -> np.ndarray:
+    from spare_twin.io import read_png
+
+    d = read_png(path)
+    if d.dtype != np.uint16 or d.ndim != 2:
+        raise SpareTwinError(f"{path}: depth must be a single-channel 16-bit PNG, got {d.dtype} with shape {d.shape}")
+    if invalid_value is not None:
+        d = np.where(d == invalid_value, np.uint16(0), d)
+    return d
+
+
+def import_folder(src: str | Path, layout: str, out: str | Path, opts: ImportOptions = ImportOptions()):
+    """Import `src` in `layout` into a recording at `out`; returns the opened Recording."""
+    src = Path(src)
+    if layout == "bag":
+        return import_bag(src, out, opts)
+    if layout not in LISTERS:
+        raise SpareTwinError(f"--layout {layout!r}: expected one of {', '.join(LAYOUTS)}")
+    if not src.is_dir():
+        raise SpareTwinError(f"{src}: not a folder")
+    return write_source(LISTERS[layout](src), out, opts)
+
+
+def _select(frames: list[FrameFiles], opts: ImportOptions) -> list[FrameFiles]:
+    if opts.stride < 1:
+        raise SpareTwinError(f"--stride {opts.stride}: must be at least 1")
+    frames = frames[:: opts.stride]
+    if opts.max_frames is not None:
+        if opts.max_frames < 1:
+            raise SpareTwinError(f"--max-frames {opts.max_frames}: must be at least 1")
+        frames = frames[: opts.max_frames]
+    return frames
+
+
+def write_source(source: Source, out: str | Path, opts: ImportOptions):
+    """Read, check and write every selected frame of `source` (atomically); returns the Recording."""
+    from tqdm import tqdm
+
+    from spare_twin.io import encode_png
+    from spare_twin.recording import Camera, Recording, RecordingWriter
+
+    frames = _select(source.frames, opts)
+    K = opts.K if opts.K is not None else source.K
+    if K is None:
+        raise SpareTwinError(f"{frames[0].color.parent}: no intrinsics file found; pass --intrinsics fx,fy,cx,cy")
+    depth_scale = opts.depth_scale if opts.depth_scale is not None else source.depth_scale
+    if not depth_scale > 0:
+        raise SpareTwinError(f"--depth-scale {depth_scale}: must be positive")
+    first, _ = _read_color(frames[0].color)
+    h, w = first.shape[:2]
+    if not (0 < K[0, 2] < w and 0 < K[1, 2] < h):
+        raise SpareTwinError(f"intrinsics: principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the {w}x{h} image")
+    has_poses = all(f.T_world_camera is not None for f in frames)
+    camera = Camera("cam0", w, h, K, None, "per_frame" if has_poses else "unknown")
+    times = [f.timestamp_s for f in frames]
+    fps = opts.fps or source.fps
+    if all(t is not None for t in times) and len(times) > 1:
+        ts = [t - times[0] for t in times]
+        fps = fps or (len(ts) - 1) / max(ts[-1], 1e-9)
+    else:
+        fps = fps or 30.0
+        ts = [i / fps for i in range(len(frames))]
+    src_info = {"kind": "sensor", "sensor_model": source.sensor_model, "layout": source.layout,
+                "path": str(frames[0].color.parent.resolve()), "source_frames": [f.name for f in frames],
+                "depth_invalid_value": source.depth_invalid_value, **source.extra}
+    with RecordingWriter(out, [camera], len(frames), fps, src_info, depth_scale=depth_scale,
+                         timestamps_s=ts) as writer:
+        for i, f in enumerate(tqdm(frames, desc=f"import {source.layout}", unit="frame", disable=not opts.progress,
+                                   file=sys.stderr)):
+            bgr, raw_png = _read_color(f.color)
+            depth = _read_depth(f.depth, source.depth_invalid_value)
+            if bgr.shape[:2] != (h, w):
+                raise SpareTwinError(f"{f.color}: size {bgr.shape[1]}x{bgr.shape[0]} differs from the first frame ({w}x{h})")
+            if depth.shape != (h, w):
+                raise SpareTwinError(f"{f.depth}: size {depth.shape[1]}x{depth.shape[0]} does not match its colour frame ({w}x{h})")
+            check_depth(depth, depth_scale, f.depth)
+            writer.add_encoded("cam0", i, raw_png if raw_png is not None else encode_png(bgr), depth)
+            if has_poses:
+                writer.set_pose("cam0", i, f.T_world_camera)
+    return Recording.open(out)
+
+
+def import_bag(path: str | Path, out: str | Path, opts: ImportOptions = ImportOptions()):
+    """Replay a RealSense .bag through open3d's RSBagReader into a recording (poses unknown)."""
+    path = Path(path)
+    if not path.is_file():
+        raise SpareTwinError(f"{path}: no such file")
+    import open3d as o3d
+
+    reader = o3d.t.io.RSBagReader()
+    if not reader.open(str(path)):
+        raise SpareTwinError(f"{path}: not a readable RealSense .bag file")
+    try:
+        from spare_twin.capture.record import stream_to_recording
+
+        md = reader.metadata
+        frames = iter(lambda: None if reader.is_eof() else reader.next_frame(), None)
+        return stream_to_recording(frames, md, out, {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense",
+                                                     "layout": "bag", "path": str(path.resolve())},
+                                   opts, expected_frames=int(md.stream_length_usec * 1e-6 * md.fps) or None,
+                                   timestamp=lambda: reader.get_timestamp() * 1e-6)
+    finally:
+        reader.close()

@@ -1,0 +1,138 @@
+"""Live capture from an Intel RealSense through open3d, and the stream writer shared with .bag replay.
+
+open3d's `RealSenseSensor.capture_frame(align_depth_to_color=True)` resamples depth into the colour
+camera's pixel grid, so one set of intrinsics (the device's colour intrinsics, read from the device)
+describes both images. Frames are written to disk as they arrive; Ctrl-C stops the capture and the
+recording is finalised with every frame received so far.
+"""
+
+from __future__ import annotations
+
+import itertools
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin import SpareTwinError
+
+
+@dataclass(frozen=True)
+class RecordConfig:
+    """Live RealSense capture settings."""
+
+    width: int = 640
+    height: int = 480
+    fps: int = 30
+    max_frames: int | None = None
+    """stop after this many frames (None: until Ctrl-C)."""
+    duration_s: float | None = None
+    """stop after this many seconds (None: until Ctrl-C)."""
+    serial: str = ""
+    """device serial number; empty: the first device."""
+    bag: str | None = None
+    """also save the raw stream to this .bag file (open3d's recorder)."""
+    visual_preset: str = ""
+    """RealSense visual preset name, e.g. RS2_L500_VISUAL_PRESET_SHORT_RANGE; empty: device default."""
+
+
+def _tensor_np(image) -> np.ndarray:
+    """open3d t.geometry.Image (or Tensor) to numpy, on the CPU."""
+    t = image.as_tensor() if hasattr(image, "as_tensor") else image
+    return np.asarray(t.cpu().numpy() if hasattr(t, "cpu") else t)
+
+
+def stream_to_recording(frames, md, out, source: dict, opts, expected_frames: int | None, timestamp) -> "object":
+    """Write open3d t.geometry.RGBDImage frames from `frames` (an iterator) into a recording.
+
+    `md` is open3d's RGBDVideoMetadata (intrinsics, depth scale, fps). Stops at the end of the
+    iterator, after `opts.max_frames`, or on Ctrl-C (then keeps what was received).
+    """
+    from tqdm import tqdm
+
+    from spare_twin.capture.frames import K_from, check_depth
+    from spare_twin.capture.store import OpenEndedWriter
+    from spare_twin.recording import Camera, Recording
+
+    Km = np.asarray(md.intrinsics.intrinsic_matrix, dtype=np.float64)
+    width, height = int(md.width), int(md.height)
+    depth_scale = 1.0 / float(md.depth_scale)  # open3d: depth units per metre
+    camera = Camera("cam0", width, height, K_from(Km[0, 0], Km[1, 1], Km[0, 2], Km[1, 2]), None, "unknown")
+    limit = getattr(opts, "max_frames", None)
+    stride = max(1, getattr(opts, "stride", 1))
+    stopped = False
+    with OpenEndedWriter(out, camera, float(md.fps) / stride, source, depth_scale) as writer:
+        bar = tqdm(total=expected_frames, desc=f"{source.get('layout', 'record')}", unit="frame", file=sys.stderr,
+                   disable=not getattr(opts, "progress", True))
+        try:
+            for k, im in enumerate(frames):
+                if k % stride:
+                    continue
+                color = _tensor_np(im.color)
+                depth = _tensor_np(im.depth)
+                depth = depth[..., 0] if depth.ndim == 3 else depth
+                if color.shape[:2] != (height, width) or depth.shape != (height, width):
+                    raise SpareTwinError(f"{source.get('path', 'sensor')}: frame {k}: colour {color.shape[:2]} / depth "
+                                         f"{depth.shape} do not match the stream's {height}x{width}")
+                if color.ndim == 2:
+                    color = np.repeat(color[..., None], 3, axis=2)
+                if color.dtype != np.uint8:  # some streams deliver 16-bit colour
+                    color = (color / 257).astype(np.uint8)
+                if writer.count == 0:
+                    check_depth(depth.astype(np.uint16), depth_scale, f"{source.get('path', 'sensor')} (first frame)")
+                writer.add(color[..., :3], depth.astype(np.uint16), timestamp())
+                bar.update(1)
+                if limit is not None and writer.count >= limit:
+                    break
+        except KeyboardInterrupt:
+            stopped = True  # finalise below with every frame received so far
+        finally:
+            bar.close()
+    if stopped:
+        print(f"stopped by Ctrl-C after {writer.count} frames; recording finalised", file=sys.stderr)
+    return Recording.open(out)
+
+
+def record_realsense(out: str | Path, cfg: RecordConfig = RecordConfig(), progress: bool = True):
+    """Record from a live RealSense until Ctrl-C, `max_frames` or `duration_s`; returns the Recording."""
+    import time
+
+    import open3d as o3d
+
+    if not o3d.t.io.RealSenseSensor.list_devices():
+        raise SpareTwinError("no Intel RealSense device found (check the USB 3 cable and `rs-enumerate-devices`)")
+    config = {
+        "serial": cfg.serial,
+        "color_format": "RS2_FORMAT_RGB8",
+        "color_resolution": f"{cfg.width},{cfg.height}",
+        "depth_format": "RS2_FORMAT_Z16",
+        "depth_resolution": f"{cfg.width},{cfg.height}",
+        "fps": str(cfg.fps),
+        "visual_preset": cfg.visual_preset,
+    }
+    sensor = o3d.t.io.RealSenseSensor()
+    if not sensor.init_sensor(o3d.t.io.RealSenseSensorConfig(config), 0, cfg.bag or ""):
+        raise SpareTwinError(f"RealSense: could not configure {cfg.width}x{cfg.height} at {cfg.fps} fps (unsupported mode?)")
+    if not sensor.start_capture(start_record=bool(cfg.bag)):
+        raise SpareTwinError("RealSense: could not start capture")
+    t_end = None if cfg.duration_s is None else time.monotonic() + cfg.duration_s
+
+    def frames():
+        for _ in itertools.count():
+            if t_end is not None and time.monotonic() >= t_end:
+                return
+            yield sensor.capture_frame(True, True)
+
+    class _Opts:
+        max_frames = cfg.max_frames
+        stride = 1
+
+    _Opts.progress = progress
+    try:
+        md = sensor.get_metadata()
+        return stream_to_recording(frames(), md, out, {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense",
+                                                       "serial": md.serial_number, "layout": "live"},
+                                   _Opts, cfg.max_frames, lambda: sensor.get_timestamp() * 1e-6)
+    finally:
+        sensor.stop_capture()

@@ -1,0 +1,122 @@
+"""Rerun view of a recording: every camera (pinhole + pose), colour, depth and the fused cloud.
+
+Entity layout::
+
+    world                               view coordinates (z up when an object frame is known)
+    world/fused                         fused cloud (static), when the recording is registered
+    world/object                        the object's points (static), when one was found
+    world/cameras/<cam>                 Transform3D camera-to-world (per frame, or static when fixed)
+    world/cameras/<cam>/image           Pinhole (static)
+    world/cameras/<cam>/image/color     EncodedImage (the PNG as stored)
+    world/cameras/<cam>/image/depth     DepthImage (raw uint16, meter = 1 / depth_scale)
+
+Timeline ``frame`` (sequence) and ``time`` (seconds). Blueprint: the 3D scene on the left; colour and
+depth of each camera on the right (tabs when there are more than two cameras).
+When the recording has an object frame, everything is shown in it (z up, table z = 0).
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class ViewConfig:
+    """What to log."""
+
+    every: int = 1
+    """log every n-th frame."""
+    max_points: int = 300_000
+    """subsample the fused cloud to at most this many points (the viewer stays responsive)."""
+    seed: int = 0
+
+
+def _blueprint(cams: list[str]):
+    import rerun.blueprint as rrb
+
+    per_cam = [
+        rrb.Vertical(
+            rrb.Spatial2DView(origin=f"world/cameras/{c}/image", contents="$origin/color", name=f"{c} colour"),
+            rrb.Spatial2DView(origin=f"world/cameras/{c}/image", contents="$origin/depth", name=f"{c} depth"),
+            name=c,
+        )
+        for c in cams
+    ]
+    right = per_cam[0] if len(per_cam) == 1 else (rrb.Horizontal(*per_cam) if len(per_cam) == 2 else rrb.Tabs(*per_cam))
+    return rrb.Blueprint(
+        rrb.Horizontal(rrb.Spatial3DView(origin="world", name="scene"), right, column_shares=[3, 2]),
+        collapse_panels=True,
+    )
+
+
+def log_recording(root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfig(), progress: bool = True) -> dict:
+    """Write `rrd` for the recording at `root`; returns what was logged."""
+    import rerun as rr
+    from tqdm import tqdm
+
+    from spare_twin import SpareTwinError
+    from spare_twin.capture.fusion import read_ply_points
+    from spare_twin.recording import Recording
+
+    rec = Recording.open(root)
+    rec.validate()
+    if cfg.every < 1:
+        raise SpareTwinError(f"--every {cfg.every}: must be at least 1")
+    reg = rec.meta.get("registration") or {}
+    T_obj_world = np.eye(4)
+    if reg.get("object"):
+        T_obj_world = np.linalg.inv(np.asarray(reg["object"]["T_world_object"], np.float64))
+    cams = [c.name for c in rec.cameras]
+    rrd = Path(rrd)
+    rrd.parent.mkdir(parents=True, exist_ok=True)
+    tmp = rrd.with_name(f".{rrd.name}.tmp")
+    stream = rr.RecordingStream("spare-twin-capture", recording_id=str(rec.root.resolve()))
+    stream.save(tmp, default_blueprint=_blueprint(cams))
+    up = rr.ViewCoordinates.RIGHT_HAND_Z_UP if reg.get("object") else rr.ViewCoordinates.RIGHT_HAND_Y_DOWN
+    stream.log("world", up, static=True)
+    rng = np.random.default_rng(cfg.seed)
+    logged = {"rrd": str(rrd), "cameras": cams, "frames": 0, "fused_points": 0, "object_points": 0}
+    for name, key in (("fused", "fused"), ("object", "object")):
+        rel = reg.get(key) if key == "fused" else (reg.get("object") or {}).get("file")
+        if rel and (rec.root / rel).is_file():
+            pts, cols = read_ply_points(rec.root / rel)
+            if len(pts) > cfg.max_points:
+                pick = rng.choice(len(pts), cfg.max_points, replace=False)
+                pts, cols = pts[pick], cols[pick]
+            pts = pts @ T_obj_world[:3, :3].T + T_obj_world[:3, 3]
+            stream.log(f"world/{name}", rr.Points3D(pts, colors=(cols * 255).astype(np.uint8), radii=0.0015 if name == "fused" else 0.002),
+                       static=True)
+            logged[f"{name}_points"] = int(len(pts))
+    for c in rec.cameras:
+        stream.log(f"world/cameras/{c.name}/image",
+                   rr.Pinhole(image_from_camera=c.K, resolution=[c.width, c.height], camera_xyz=rr.ViewCoordinates.RDF,
+                              image_plane_distance=0.05), static=True)
+        if c.poses == "fixed" and c.T_world_camera is not None:
+            _log_pose(stream, c.name, T_obj_world @ c.T_world_camera, static=True)
+    ts = rec.timestamps_s
+    frames = range(0, rec.n_frames, cfg.every)
+    for f in tqdm(frames, desc="view", unit="frame", file=sys.stderr, disable=not progress):
+        stream.set_time("frame", sequence=f)
+        stream.set_time("time", duration=float(ts[f]))
+        for c in rec.cameras:
+            if c.poses == "per_frame":
+                _log_pose(stream, c.name, T_obj_world @ rec.T_world_camera(c.name, f))
+            base = f"world/cameras/{c.name}/image"
+            stream.log(f"{base}/color", rr.EncodedImage(contents=rec.path(c.name, "color", f).read_bytes(), media_type="image/png"))
+            depth = rec._checked(c.name, "depth", f)
+            stream.log(f"{base}/depth", rr.DepthImage(depth, meter=1.0 / rec.depth_scale))
+        logged["frames"] += 1
+    stream.flush()
+    stream.disconnect()
+    tmp.replace(rrd)
+    return logged
+
+
+def _log_pose(stream, cam: str, T: np.ndarray, static: bool = False) -> None:
+    import rerun as rr
+
+    stream.log(f"world/cameras/{cam}", rr.Transform3D(translation=T[:3, 3], mat3x3=T[:3, :3]), static=static)

@@ -1,0 +1,98 @@
+"""Registration of real APC frames without their poses, fusion, and the Rerun view."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from capture_helpers import APC
+from conftest import run_cli
+
+
+@pytest.fixture(scope="module")
+def registered(tmp_path_factory):
+    """The 4 APC test frames imported, then registered with the reference poses ignored."""
+    from spare_twin.capture.importers import ImportOptions, import_folder
+    from spare_twin.capture.pipeline import register_recording
+    from spare_twin.capture.registration import RegistrationConfig
+
+    root = tmp_path_factory.mktemp("apc") / "rec"
+    rec = import_folder(APC, "7scenes", root, ImportOptions(progress=False))
+    reference = rec._poses["cam0"].copy()
+    out = register_recording(root, RegistrationConfig(loop_gaps_frames=(2, 3)), use_reference=False, find="auto",
+                             progress=False)
+    return root, reference, out
+
+
+def test_register_recovers_reference_poses(registered):
+    from spare_twin.capture.registration import relative_pose_errors
+
+    root, reference, out = registered
+    poses = np.array(out["poses_camera_to_world"])
+    assert out["frames"] == ["000000", "000001", "000002", "000003"] and poses.shape == (4, 4, 4)
+    assert np.allclose(poses[0], np.eye(4))  # world = the first camera when poses are unknown
+    for gap in (1, 2, 3):  # 2, 4 and 6 positions apart in the original sequence (about 3.5 to 10 deg)
+        E = relative_pose_errors(poses, reference, gap)
+        assert E[:, 0].max() < 1.0 and E[:, 1].max() < 10.0, (gap, E)
+
+
+def test_register_writes_results_into_the_recording(registered):
+    from spare_twin.capture.fusion import read_ply_points
+    from spare_twin.capture.pipeline import REFERENCE_POSES
+    from spare_twin.recording import Recording
+
+    root, reference, out = registered
+    rec = Recording.open(root)
+    rec.validate()
+    assert rec.cameras[0].poses == "per_frame"
+    assert np.allclose(rec._poses["cam0"], np.array(out["poses_camera_to_world"]))
+    assert np.allclose(np.load(root / "cameras" / "cam0" / REFERENCE_POSES), reference)  # kept aside
+    pts, cols = read_ply_points(root / "fused.ply")
+    assert len(pts) > 5000 and cols.shape == pts.shape
+    assert 0.2 < np.median(pts[:, 2]) < 0.7  # in the first camera's frame, the bin is in front of it
+    assert rec.meta["registration"]["used_reference"] is False
+
+
+def test_register_cli_json_with_reference(registered, tmp_path, capsys):
+    """--use-reference (default): the world is the reference world and poses stay close to it."""
+    import shutil
+
+    root, reference, _ = registered
+    copy = tmp_path / "rec"
+    shutil.copytree(root, copy)
+    code, out, err = run_cli(["capture", "register", str(copy), "--loop-gaps", "2", "--object", "skip", "--json"], capsys)
+    assert code == 0, err
+    res = json.loads(out)
+    poses = np.array(res["poses_camera_to_world"])
+    assert res["used_reference"] is True and len(res["frames"]) == 4
+    assert np.abs(poses[:, :3, 3] - reference[:, :3, 3]).max() < 0.01
+
+
+def test_view_writes_a_valid_rrd(registered, tmp_path, capsys):
+    root, _, _ = registered
+    rrd = tmp_path / "apc.rrd"
+    code, out, err = run_cli(["capture", "view", str(root), "--rrd", str(rrd), "--json"], capsys)
+    assert code == 0, err
+    info = json.loads(out)
+    assert info["frames"] == 4 and info["fused_points"] > 5000
+    rerun = Path(sys.executable).with_name("rerun")
+    r = subprocess.run([str(rerun), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+
+
+def test_fuse_recording_boundary(registered, tmp_path):
+    """fuse_recording: a one-line error without an object; points + T_world_object with one."""
+    from spare_twin import SpareTwinError
+    from spare_twin.capture.pipeline import fuse_recording
+    from spare_twin.recording import Recording
+
+    root, _, out = registered
+    if out["object"] is None:
+        with pytest.raises(SpareTwinError, match="no object found"):
+            fuse_recording(Recording.open(root))
+    else:
+        pts, cols, T = fuse_recording(Recording.open(root))
+        assert len(pts) == out["object"]["points"] and T.shape == (4, 4)
