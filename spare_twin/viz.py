@@ -1,0 +1,138 @@
+"""Rerun logging of a sim-vs-real comparison (`spare-twin compare --rrd`).
+
+Entity layout::
+
+    world/real_cloud                    the fused real object cloud, in the twin's base frame
+    world/twin/link<k>                  the posed twin's meshes (the printed STLs), link colours
+    real/frame/color, real/frame/depth  the real recording, frame by frame (timeline `frame`)
+    sim/frame/color, sim/frame/depth    the twin rendered through the same cameras
+    real/network_input, sim/network_input   the depth views each network saw, tiled (metres)
+    lengths/truth, lengths/sim, lengths/real  link lengths (paper units), base first
+    summary                             markdown table: truth vs sim vs real
+
+Blueprint: real (left) and sim (right) frames beside the 3D scene; below, the two networks' inputs,
+the length bar charts and the summary.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+
+@dataclass
+class ComparisonLog:
+    """Everything `log_comparison` writes; arrays in the twin's base frame (metres)."""
+
+    result: dict
+    """The `compare --json` object."""
+    real_cloud: np.ndarray
+    real_cloud_rgb: np.ndarray
+    twin_meshes: list[tuple[np.ndarray, np.ndarray, tuple[float, float, float]]]
+    """Posed (vertices, triangles, rgb) per link."""
+    real_input: np.ndarray
+    """(V, H, W) depth the network saw for the real recording."""
+    sim_input: np.ndarray
+    real_rec: object
+    """spare_twin.recording.Recording."""
+    sim_rec: object
+
+
+def tile(views: np.ndarray, columns: int = 4) -> np.ndarray:
+    """(V, H, W) -> one (rows * H, columns * W) mosaic, empty tiles zero (no reading)."""
+    v, h, w = views.shape
+    rows = -(-v // columns)
+    out = np.zeros((rows * h, columns * w), dtype=views.dtype)
+    for i in range(v):
+        r, c = divmod(i, columns)
+        out[r * h : (r + 1) * h, c * w : (c + 1) * w] = views[i]
+    return out
+
+
+def summary_markdown(result: dict) -> str:
+    truth, sim, real = result["truth"], result["sim"], result["real"]
+    errs = result["errors"]
+
+    def lengths(d):
+        return ", ".join(f"{x:.3f}" for x in (d.get("link_lengths_m") or [])) or "-"
+
+    lines = [
+        "| | links | lengths (paper units, base first) | count | E_L |",
+        "|---|---|---|---|---|",
+        f"| truth | {truth['n_links']} | {lengths(truth)} | | |",
+        f"| sim | {sim['n_links']} | {lengths(sim)} | {'right' if errs['sim']['count_correct'] else 'wrong'} | {errs['sim']['E_L']:.4f} |",
+        f"| real | {real['n_links']} | {lengths(real)} | {'right' if errs['real']['count_correct'] else 'wrong'} | {errs['real']['E_L']:.4f} |",
+    ]
+    fit = result.get("registration") or {}
+    if fit.get("joint_angles_rad") is not None:
+        lines += ["", "Joint angles from articulated registration (deg): "
+                  + ", ".join(f"{np.degrees(a):.1f}" for a in fit["joint_angles_rad"])]
+    if errs.get("joint_angles_deg") is not None:
+        lines += ["", "Their error against the recording's ground truth (deg): "
+                  + ", ".join(f"{a:.2f}" for a in errs["joint_angles_deg"])]
+    return "\n".join(lines) + "\n"
+
+
+def _blueprint():
+    import rerun.blueprint as rrb
+
+    def frames(side: str):
+        return rrb.Vertical(
+            rrb.Spatial2DView(origin=f"{side}/frame", contents="$origin/color", name=f"{side}: colour"),
+            rrb.Spatial2DView(origin=f"{side}/frame", contents="$origin/depth", name=f"{side}: depth"),
+            name=side,
+        )
+
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Horizontal(frames("real"), rrb.Spatial3DView(origin="world", name="real cloud + posed twin"), frames("sim"),
+                           column_shares=[1, 2, 1]),
+            rrb.Horizontal(
+                rrb.Spatial2DView(origin="real/network_input", name="real: network input (depth)"),
+                rrb.Spatial2DView(origin="sim/network_input", name="sim: network input (depth)"),
+                rrb.BarChartView(origin="lengths", name="link lengths: truth, sim, real"),
+                rrb.TextDocumentView(origin="summary", name="truth vs sim vs real"),
+            ),
+            row_shares=[3, 2],
+        ),
+        collapse_panels=True,
+    )
+
+
+def log_comparison(rrd: str | Path, log: ComparisonLog, every: int = 1) -> None:
+    """Write the comparison to `rrd` (under a temporary name, renamed when complete)."""
+    import rerun as rr
+
+    rrd = Path(rrd)
+    rrd.parent.mkdir(parents=True, exist_ok=True)
+    tmp = rrd.with_name(f".{rrd.name}.tmp")
+    stream = rr.RecordingStream("spare-twin-compare")
+    stream.save(tmp, default_blueprint=_blueprint())
+    stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+    stream.log("world/real_cloud", rr.Points3D(log.real_cloud, colors=(np.clip(log.real_cloud_rgb, 0, 1) * 255).astype(np.uint8),
+                                               radii=0.0012), static=True)
+    for k, (vertices, triangles, rgb) in enumerate(log.twin_meshes):
+        stream.log(f"world/twin/link{k}", rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles,
+                                                     albedo_factor=[*rgb, 0.55]), static=True)
+    for side, views in (("real", log.real_input), ("sim", log.sim_input)):
+        stream.log(f"{side}/network_input", rr.DepthImage(tile(np.asarray(views, np.float32)), meter=1.0), static=True)
+    colours = {"truth": [120, 120, 120], "sim": [60, 130, 230], "real": [230, 120, 40]}
+    for side in ("truth", "sim", "real"):
+        values = log.result[side].get("link_lengths_m") or []
+        padded = np.zeros(7, np.float32)
+        padded[: len(values)] = values
+        stream.log(f"lengths/{side}", rr.BarChart(padded, color=colours[side]), static=True)
+    stream.log("summary", rr.TextDocument(summary_markdown(log.result), media_type=rr.MediaType.MARKDOWN), static=True)
+
+    n = min(log.real_rec.n_frames, log.sim_rec.n_frames)
+    real_cam, sim_cam = log.real_rec.cameras[0].name, log.sim_rec.cameras[0].name
+    for f in range(0, n, every):
+        stream.set_time("frame", sequence=f)
+        for side, rec, cam in (("real", log.real_rec, real_cam), ("sim", log.sim_rec, sim_cam)):
+            stream.log(f"{side}/frame/color", rr.Image(rec.color(cam, f)))
+            stream.log(f"{side}/frame/depth", rr.DepthImage(rec.depth_m(cam, f), meter=1.0))
+    stream.flush()
+    stream.disconnect()
+    tmp.replace(rrd)

@@ -1,0 +1,79 @@
+"""The sim-to-real table and the comparison's Rerun recording, on hand-made results."""
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spare_twin.compare import score
+from spare_twin.sim2real import sim2real_table, table_markdown, write_table
+
+
+def _result(n, sim_n, real_n, angle_err=None):
+    truth = {"n_links": n, "link_lengths_m": [1.5] + [0.5] * n}
+    sim = {"n_links": sim_n, "link_lengths_m": [1.5] + [0.5] * sim_n}
+    real = {"n_links": real_n, "link_lengths_m": [1.4] + [0.5] * real_n}
+    return {"truth": truth, "sim": sim, "real": real,
+            "errors": {"sim": score(truth, sim), "real": score(truth, real), "joint_angles_deg": angle_err}}
+
+
+def test_score_uses_the_end_to_end_rule():
+    truth = {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4]}
+    exact = score(truth, {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4]})
+    assert exact["count_correct"] and exact["E_L"] == pytest.approx(0.0)
+    # One link missing: its squared length is the error; one invented: likewise.
+    assert score(truth, {"n_links": 1, "link_lengths_m": [1.5, 0.5]})["E_L"] == pytest.approx(0.16)
+    extra = score(truth, {"n_links": 3, "link_lengths_m": [1.5, 0.5, 0.4, 0.3]})
+    assert not extra["count_correct"] and extra["E_L"] == pytest.approx(0.09)
+    assert extra["per_link_m"] == pytest.approx([0, 0, 0, 0.3])
+
+
+def test_table_per_n_and_overall(tmp_path):
+    results = [_result(1, 1, 1, [1.0]), _result(1, 1, 2, [3.0]), _result(2, 2, 2, [2.0, 4.0])]
+    table = sim2real_table(results)
+    assert table["per_n"]["1"]["instances"] == 2
+    assert table["per_n"]["1"]["sim"]["count_accuracy"] == 1.0
+    assert table["per_n"]["1"]["real"]["count_accuracy"] == 0.5
+    assert table["overall"]["real"]["count_accuracy"] == pytest.approx(2 / 3)
+    assert table["count_accuracy_gap_points"] == pytest.approx(100 / 3)
+    # real base is 0.1 short everywhere, plus one invented 0.5 link
+    assert table["per_n"]["2"]["real"]["E_L"] == pytest.approx(0.01)
+    assert table["overall"]["joint_angle_error_deg"] == {"mean": 2.5, "max": 4.0}
+    md = table_markdown(table)
+    assert "| all | 3 |" in md and md.count("\n") == 5
+    files = write_table(table, tmp_path)
+    assert json.loads(Path(files["json"]).read_text())["overall"]["instances"] == 3
+    import cv2
+
+    img = cv2.imread(files["png"])
+    assert img.shape == (360, 900, 3) and (img < 250).any()
+
+
+def test_comparison_rrd_verifies(tmp_path):
+    from spare_twin.recording import Camera, Recording, RecordingWriter
+    from spare_twin.viz import ComparisonLog, log_comparison
+
+    K = np.array([[100.0, 0, 31.5], [0, 100.0, 23.5], [0, 0, 1]])
+    recs = []
+    for name in ("real", "sim"):
+        with RecordingWriter(tmp_path / name, [Camera("cam0", 64, 48, K, np.eye(4))], 2, 10.0, {"kind": "sim"}) as w:
+            for f in range(2):
+                w.add_frame("cam0", f, np.full((48, 64, 3), 100, np.uint8), np.full((48, 64), 0.5, np.float32))
+        recs.append(Recording.open(tmp_path / name))
+    result = _result(2, 2, 1, [1.0, 2.0])
+    result["registration"] = {"joint_angles_rad": [0.1, 0.2]}
+    cube = (np.array([[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.01]], np.float32), np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], np.uint32), (1.0, 0.0, 0.0))
+    rrd = tmp_path / "cmp.rrd"
+    log_comparison(rrd, ComparisonLog(result, np.random.default_rng(0).random((50, 3)), np.full((50, 3), 0.5), [cube],
+                                      np.ones((8, 96, 128)), np.ones((8, 96, 128)), recs[0], recs[1]))
+    rerun = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
+    res = subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True, text=True)
+    assert res.returncode == 0, res.stderr
+    # The sim and real entities are there.
+    res = subprocess.run([rerun, "rrd", "print", str(rrd)], capture_output=True, text=True)
+    for entity in ("/real/network_input", "/sim/network_input", "/world/real_cloud", "/world/twin/link0", "/summary", "/real/frame/depth", "/sim/frame/color"):
+        assert entity in res.stdout, entity
