@@ -59,17 +59,27 @@ def link_segment_m(spec: ChainSpec, k: int) -> tuple[float, float]:
     return 0.0, length
 
 
+def plate_lowest_point_m(angles_rad, lengths_phys_m, half_width_m: float) -> np.ndarray:
+    """Lowest height of any moving link's plate for poses (..., n) -> (...).
+
+    Closed form of the planar chain (joint k turns about +y, so a link at cumulative angle phi runs
+    along (sin phi, 0, cos phi)): each plate is the segment between its axes thickened by half the
+    width; the last link's segment ends half a width before its tip.
+    """
+    angles = np.asarray(angles_rad, dtype=np.float64)
+    lengths = np.asarray(lengths_phys_m, dtype=np.float64)
+    segment = lengths[1:].copy()
+    segment[-1] = max(segment[-1] - half_width_m, 0.0)
+    dz = np.cos(np.cumsum(angles, axis=-1)) * lengths[1:]
+    axes = lengths[0] + np.concatenate([np.zeros(dz.shape[:-1] + (1,)), np.cumsum(dz, axis=-1)[..., :-1]], axis=-1)
+    ends = axes + np.cos(np.cumsum(angles, axis=-1)) * segment
+    return np.minimum(axes, ends).min(axis=-1) - half_width_m
+
+
 def lowest_point_m(spec: ChainSpec, joint_angles_rad) -> float:
     """Lowest height reached by any moving link's plate at these joint angles."""
-    poses = forward_kinematics(spec, joint_angles_rad)
-    half_width = spec.parts.link_width_mm / 2000.0
-    low = math.inf
-    for k in range(1, spec.n_links + 1):
-        a, b = link_segment_m(spec, k)
-        z_axis = poses[k][:3, 2]
-        z0 = poses[k][2, 3]
-        low = min(low, z0 + a * z_axis[2] - half_width, z0 + b * z_axis[2] - half_width)
-    return low
+    lengths = np.asarray(spec.link_lengths_m) * spec.print_scale
+    return float(plate_lowest_point_m(joint_angles_rad, lengths, spec.parts.link_width_mm / 2000.0))
 
 
 def joint_limits_rad(spec: ChainSpec) -> np.ndarray:

@@ -128,3 +128,20 @@ def test_sampled_poses_clear_the_foot_and_respect_limits(object_dirs):
             q = sample_pose(obj.spec, rng)
             assert np.all(q >= lim[:, 0]) and np.all(q <= lim[:, 1])
             assert is_clear_of_foot(obj.spec, q)
+
+
+def test_closed_form_lowest_point_matches_forward_kinematics(object_dirs):
+    from spare_twin.kinematics import link_segment_m, lowest_point_m
+
+    rng = np.random.default_rng(3)
+    for obj in object_dirs.values():
+        spec = obj.spec
+        for _ in range(20):
+            q = rng.uniform(-np.pi, np.pi, spec.n_links)
+            poses = forward_kinematics(spec, q)
+            low = min(
+                min(P[2, 3] + a * P[2, 2], P[2, 3] + b * P[2, 2])
+                for k, P in enumerate(poses[1:], start=1)
+                for a, b in [link_segment_m(spec, k)]
+            ) - spec.parts.link_width_mm / 2000
+            assert lowest_point_m(spec, q) == pytest.approx(low, abs=1e-12)

@@ -8,8 +8,8 @@ a shorter averaging window: an average of values that are each below alpha*(t) s
 Links cannot collide with each other (each lies in its own layer along the joint axes), so the
 keep-out height is the only constraint besides the limits.
 
-Kinematics here are the planar chain of docs/CONTRACTS.md: joint k turns about +y, so a link at
-cumulative angle phi points along (sin phi, 0, cos phi) from its proximal axis.
+The keep-out test is `kinematics.plate_lowest_point_m`, the same one the object's joint limits and
+pose sampling use.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spare_twin import SpareTwinError
+from spare_twin.kinematics import plate_lowest_point_m as lowest_point_m
 
 
 @dataclass(frozen=True)
@@ -38,19 +39,6 @@ class MotionConfig:
     """Extra height kept above the keep-out when choosing the pull-back factor."""
     alpha_steps: int = 64
     smooth_radius_frames: int = 4
-
-
-def joint_heights_m(angles_rad: np.ndarray, lengths_phys_m: np.ndarray) -> np.ndarray:
-    """Heights of the joint axes and the tip for poses (..., n): (..., n + 1), joint 1 first, tip last."""
-    phi = np.cumsum(angles_rad, axis=-1)
-    dz = np.cos(phi) * lengths_phys_m[1:]
-    return lengths_phys_m[0] + np.concatenate([np.zeros(dz.shape[:-1] + (1,)), np.cumsum(dz, axis=-1)], axis=-1)
-
-
-def lowest_point_m(angles_rad: np.ndarray, lengths_phys_m: np.ndarray, half_width_m: float) -> np.ndarray:
-    """Lowest height of any moving link plate (a plate reaches half a width past each axis; the
-    sqrt(2) covers a box plate's corners as well as a rounded one)."""
-    return joint_heights_m(angles_rad, lengths_phys_m).min(axis=-1) - np.sqrt(2.0) * half_width_m
 
 
 def random_motion(
