@@ -119,11 +119,13 @@ def log_comparison(rrd: str | Path, log: ComparisonLog, every: int = 1) -> None:
     for side, views in (("real", log.real_input), ("sim", log.sim_input)):
         stream.log(f"{side}/network_input", rr.DepthImage(tile(np.asarray(views, np.float32)), meter=1.0), static=True)
     colours = {"truth": [120, 120, 120], "sim": [60, 130, 230], "real": [230, 120, 40]}
-    for side in ("truth", "sim", "real"):
+    for offset, side in zip((-0.27, 0.0, 0.27), ("truth", "sim", "real")):
         values = log.result[side].get("link_lengths_m") or []
         padded = np.zeros(7, np.float32)
         padded[: len(values)] = values
-        stream.log(f"lengths/{side}", rr.BarChart(padded, color=colours[side]), static=True)
+        # Grouped bars: link i's truth, sim and real side by side around x = i.
+        stream.log(f"lengths/{side}", rr.BarChart(padded, color=colours[side], abscissa=np.arange(7) + offset,
+                                                  widths=np.full(7, 0.25, np.float32)), static=True)
     stream.log("summary", rr.TextDocument(summary_markdown(log.result), media_type=rr.MediaType.MARKDOWN), static=True)
 
     n = min(log.real_rec.n_frames, log.sim_rec.n_frames)
