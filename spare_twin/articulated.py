@@ -25,6 +25,8 @@ from spare_twin.objects import ObjectFolder
 
 #: Distances beyond this count as "not explained" (metres): robust to clutter and fusion noise.
 TRUNCATE_M = 0.01
+#: How far below the foot's keep-out height a surface sample may fall during the search (sampling slack).
+KEEPOUT_TOLERANCE_M = 0.002
 
 
 @dataclass(frozen=True)
@@ -112,6 +114,7 @@ def fit_articulated(obj: ObjectFolder, points_world: np.ndarray, config: FitConf
     low = points[points[:, 2] < keepout_height_m(spec)]
     x0, y0 = np.median(low if len(low) >= 20 else points, axis=0)[:2]
 
+    keepout = keepout_height_m(spec)
     hypotheses = []
     for yaw in _yaw_candidates(points, spec, config.yaw_steps):
         params = np.array([x0, y0, yaw, *np.zeros(spec.n_links)])
@@ -125,7 +128,10 @@ def fit_articulated(obj: ObjectFolder, points_world: np.ndarray, config: FitConf
             # Score against the points the links placed so far do not explain, so a link cannot
             # fold back onto its parent's points.
             d = cKDTree(unexplained).query(world.reshape(-1, 3))[0].reshape(len(grid), -1)
-            best = int(np.argmin(np.mean(_truncated(d) ** 2, axis=1)))
+            cost = np.mean(_truncated(d) ** 2, axis=1)
+            # The printed object cannot put a link through its foot: such angles are not candidates.
+            cost[world[:, :, 2].min(axis=1) < keepout - KEEPOUT_TOLERANCE_M] = np.inf
+            best = int(np.argmin(cost))
             params[2 + k] = grid[best]
             T_parent = T_parent @ joint_origin(spec, k) @ rot_y(grid[best])
             unexplained = _unexplained(unexplained, link_points[k] @ T_parent[:3, :3].T + T_parent[:3, 3])

@@ -109,8 +109,8 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
     render_twin_through(obj, fit.joint_angles_rad, T_world_base, real, sim_dir, cfg)
 
     print("compare: running the network on the real and the sim recording", file=sys.stderr)
-    sim_pred = predict_recording(sim_dir, model)
-    real_pred = predict_recording(real.root, model)
+    sim_pred = predict_recording(sim_dir, model, return_input=rrd is not None)
+    real_pred = predict_recording(real.root, model, return_input=rrd is not None)
     truth = {"n_links": obj.spec.n_links, "link_lengths_m": list(obj.spec.link_lengths_m)}
     gt = real.ground_truth()
     truth["joint_angles_rad"] = None if gt is None else [float(a) for a in np.asarray(gt["joint_angles_rad"])[0]]
@@ -160,8 +160,7 @@ def _write_rrd(rrd, result, obj, cloud_obj, colors, fit, real, sim, sim_pred, re
             meshes.append((np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), COLORS[obj.spec.colors[k]]))
     log_comparison(rrd, ComparisonLog(
         result=result, real_cloud=cloud, real_cloud_rgb=colors, twin_meshes=meshes,
-        real_input=np.asarray(real_pred.get("network_input", np.zeros((1, 96, 128)))),
-        sim_input=np.asarray(sim_pred.get("network_input", np.zeros((1, 96, 128)))),
+        real_input=real_pred["network_input"], sim_input=sim_pred["network_input"],
         real_rec=real, sim_rec=sim,
     ), every=cfg.rrd_every)
 

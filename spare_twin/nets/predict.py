@@ -184,7 +184,9 @@ def _canonical_batch(cv, k: int, net: NetConfig, camera: str | None, print_scale
 
 def predict_recording(rec_dir, model_path=None, frame: int | None = None, camera: str | None = None,
                       print_scale: float | None = None, n_links: int | None = None, device: str = "cpu",
-                      progress: bool = True, yaw_hypotheses: int = 4) -> dict:
+                      progress: bool = True, yaw_hypotheses: int = 4, return_input: bool = False) -> dict:
+    """The network's prediction for a recording; `return_input` adds `network_input`, the (V, H, W)
+    views it saw for the chosen yaw (numpy, not JSON: for logging)."""
     from spare_twin.recording import Recording
 
     model_path = model_path or ckpt.default_model("predict")
@@ -220,4 +222,6 @@ def predict_recording(rec_dir, model_path=None, frame: int | None = None, camera
     out["yaw_deg"] = out["yaw_hypotheses_deg"][best]
     out["model"] = str(model_path)
     out["recording"] = str(rec_dir)
+    if return_input:
+        out["network_input"] = batch["x"][best].numpy()
     return out
