@@ -57,24 +57,33 @@ class ArticulatedFit:
     """Share of cloud points within 5 mm of the posed twin."""
 
 
-def twin_surface_points(obj: ObjectFolder, per_link: int, seed: int = 0) -> list[np.ndarray]:
-    """Surface samples of every link's printed parts, in that link's frame (metres)."""
+def twin_link_meshes(obj: ObjectFolder) -> list:
+    """Each link's printed parts as one trimesh in that link's frame (metres), read through the URDF:
+    its visual STL files placed by their visual origins."""
     import trimesh
 
     from spare_twin.urdf import load_urdf
 
-    urdf = load_urdf(obj.urdf_path)
-    rng = np.random.default_rng(seed)
+    links = {l.name: l for l in load_urdf(obj.urdf_path).robot.links}
     out = []
     for k in range(obj.spec.n_links + 1):
-        link = urdf.robot.links[[l.name for l in urdf.robot.links].index(f"link{k}")]
         meshes = []
-        for visual in link.visuals:
+        for visual in links[f"link{k}"].visuals:
             mesh = trimesh.load(obj.root / visual.geometry.mesh.filename, file_type="stl")
             mesh.apply_scale(1e-3)
             mesh.apply_transform(visual.origin)
             meshes.append(mesh)
-        mesh = trimesh.util.concatenate(meshes)
+        out.append(trimesh.util.concatenate(meshes))
+    return out
+
+
+def twin_surface_points(obj: ObjectFolder, per_link: int, seed: int = 0) -> list[np.ndarray]:
+    """Surface samples of every link's printed parts, in that link's frame (metres)."""
+    import trimesh
+
+    rng = np.random.default_rng(seed)
+    out = []
+    for mesh in twin_link_meshes(obj):
         pts, _ = trimesh.sample.sample_surface(mesh, per_link, seed=int(rng.integers(2**31)))
         out.append(np.asarray(pts, dtype=np.float64))
     return out

@@ -140,24 +140,18 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
 
 
 def _write_rrd(rrd, result, obj, cloud_obj, colors, fit, real, sim, sim_pred, real_pred, cfg) -> None:
-    import trimesh
-
+    from spare_twin.articulated import twin_link_meshes
     from spare_twin.kinematics import forward_kinematics
-    from spare_twin.urdf import load_urdf
     from spare_twin.viz import ComparisonLog, log_comparison
 
     # Everything in the twin's base frame: the cloud moves by the fitted base pose.
     T_base_object = np.linalg.inv(fit.T_world_base)
     cloud = cloud_obj @ T_base_object[:3, :3].T + T_base_object[:3, 3]
     poses = forward_kinematics(obj.spec, fit.joint_angles_rad)
-    urdf = load_urdf(obj.urdf_path)
     meshes = []
-    for k, link in enumerate(sorted(urdf.robot.links, key=lambda l: int(l.name[4:]))):
-        for visual in link.visuals:
-            mesh = trimesh.load(obj.root / visual.geometry.mesh.filename, file_type="stl")
-            mesh.apply_scale(1e-3)
-            mesh.apply_transform(poses[k] @ visual.origin)
-            meshes.append((np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), COLORS[obj.spec.colors[k]]))
+    for k, mesh in enumerate(twin_link_meshes(obj)):
+        mesh.apply_transform(poses[k])
+        meshes.append((np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), COLORS[obj.spec.colors[k]]))
     log_comparison(rrd, ComparisonLog(
         result=result, real_cloud=cloud, real_cloud_rgb=colors, twin_meshes=meshes,
         real_input=real_pred["network_input"], sim_input=sim_pred["network_input"],
