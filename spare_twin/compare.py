@@ -11,7 +11,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,7 +27,6 @@ class CompareConfig:
 
     sim_near_m: float = 0.02
     sim_far_m: float = 3.0
-    seed: int = 0
     rrd_every: int = 1
     """Log every n-th frame of the two recordings to the .rrd."""
 
@@ -173,7 +171,3 @@ def format_summary(result: dict) -> str:
     if ja is not None:
         lines.append("  joint angles from registration: error " + ", ".join(f"{a:.1f}" for a in ja) + " deg")
     return "\n".join(lines)
-
-
-def dumps(result: dict) -> str:
-    return json.dumps(result)

@@ -29,7 +29,9 @@ def register(sub) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from spare_twin import SpareTwinError
-    from spare_twin.compare import compare, dumps, format_summary
+    import json
+
+    from spare_twin.compare import compare, format_summary
 
     if args.batch:
         return run_batch(args)
@@ -37,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
         raise SpareTwinError("--object and --real are both needed (or --batch DIR)")
     result = compare(args.object, args.real, model=args.model, rrd=args.rrd, sim_dir=args.sim_out)
     if args.json:
-        print(dumps(result))
+        print(json.dumps(result))
     else:
         print(f"compare {args.object} vs {args.real}:")
         print(format_summary(result))
