@@ -29,6 +29,8 @@ class CompareConfig:
     sim_far_m: float = 3.0
     rrd_every: int = 1
     """Log every n-th frame of the two recordings to the .rrd."""
+    fit_views: int = 20
+    """Depth frames of the real recording, spread over it, that decide between a fit and its mirror."""
 
 
 def padded(lengths) -> np.ndarray:
@@ -82,6 +84,19 @@ def render_twin_through(obj, joint_angles_rad, T_world_base: np.ndarray, real, o
         )
 
 
+def depth_views(real, T_object_world: np.ndarray, count: int) -> list:
+    """`count` depth frames spread over every posed camera of `real`, posed in the object frame."""
+    from spare_twin.articulated import DepthView
+
+    views = []
+    for c in real.cameras:
+        if c.poses == "unknown":
+            continue
+        for f in np.unique(np.linspace(0, real.n_frames - 1, count).round().astype(int)):
+            views.append(DepthView(real.depth_m(c.name, int(f)), np.asarray(c.K), T_object_world @ real.T_world_camera(c.name, int(f))))
+    return views
+
+
 def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: CompareConfig = CompareConfig()) -> dict:
     from spare_twin.articulated import fit_articulated
     from spare_twin.capture.pipeline import fuse_recording, register_recording
@@ -100,15 +115,19 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
     cloud_obj = points @ T_object_world[:3, :3].T + T_object_world[:3, 3]
 
     print("compare: fitting the URDF twin to the real cloud", file=sys.stderr)
-    fit = fit_articulated(obj, cloud_obj)
+    fit = fit_articulated(obj, cloud_obj, views=depth_views(real, T_object_world, cfg.fit_views))
     T_world_base = T_world_object @ fit.T_world_base
 
     sim_dir = Path(sim_dir) if sim_dir else Path(real.root).with_name(Path(real.root).name + "_sim_twin")
     render_twin_through(obj, fit.joint_angles_rad, T_world_base, real, sim_dir, cfg)
 
     print("compare: running the network on the real and the sim recording", file=sys.stderr)
-    sim_pred = predict_recording(sim_dir, model, return_input=rrd is not None)
-    real_pred = predict_recording(real.root, model, return_input=rrd is not None)
+    # Both sides in the same object frame: the sim twin stands at its origin by construction, the real
+    # views are placed by the registered base pose. `real_estimated_frame` is what `predict` alone
+    # makes of the recording, with its own frame estimate and yaw hypotheses.
+    sim_pred = predict_recording(sim_dir, model, progress=False, return_input=rrd is not None)
+    real_pred = predict_recording(real.root, model, progress=False, return_input=rrd is not None, T_world_base=T_world_base)
+    own_pred = predict_recording(real.root, model, progress=False)
     truth = {"n_links": obj.spec.n_links, "link_lengths_m": list(obj.spec.link_lengths_m)}
     gt = real.ground_truth()
     truth["joint_angles_rad"] = None if gt is None else [float(a) for a in np.asarray(gt["joint_angles_rad"])[0]]
@@ -118,13 +137,16 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
         "truth": truth,
         "sim": {k: sim_pred.get(k) for k in keep},
         "real": {k: real_pred.get(k) for k in keep},
+        "real_estimated_frame": {k: own_pred.get(k) for k in keep + ("input", "yaw_deg")},
         "registration": {
             "joint_angles_rad": [float(a) for a in fit.joint_angles_rad],
             "T_world_base": T_world_base.tolist(),
             "rmse_m": fit.rmse_m,
             "inlier_fraction": fit.inlier_fraction,
+            "depth_error_m": fit.depth_error_m,
         },
-        "errors": {"sim": score(truth, sim_pred), "real": score(truth, real_pred), "joint_angles_deg": None},
+        "errors": {"sim": score(truth, sim_pred), "real": score(truth, real_pred),
+                   "real_estimated_frame": score(truth, own_pred), "joint_angles_deg": None},
         "sim_recording": str(sim_dir),
         "model": real_pred.get("model"),
     }
@@ -159,14 +181,17 @@ def _write_rrd(rrd, result, obj, cloud_obj, colors, fit, real, sim, sim_pred, re
 
 def format_summary(result: dict) -> str:
     lines = []
-    for side in ("truth", "sim", "real"):
-        d = result[side]
+    names = {"truth": "truth", "sim": "sim", "real": "real", "real_estimated_frame": "real, predict's own frame"}
+    for side, name in names.items():
+        d = result.get(side)
+        if d is None:
+            continue
         lengths = ", ".join(f"{x:.3f}" for x in (d.get("link_lengths_m") or []))
         extra = ""
         if side != "truth":
             e = result["errors"][side]
             extra = f"  count {'right' if e['count_correct'] else 'WRONG'}, E_L {e['E_L']:.4f}" if e["E_L"] is not None else ""
-        lines.append(f"  {side:5s}  n = {d['n_links']}  lengths [{lengths}]{extra}")
+        lines.append(f"  {name:<26s} n = {d['n_links']}  lengths [{lengths}]{extra}")
     ja = result["errors"].get("joint_angles_deg")
     if ja is not None:
         lines.append("  joint angles from registration: error " + ", ".join(f"{a:.1f}" for a in ja) + " deg")

@@ -77,3 +77,16 @@ def test_on_the_fly():
     assert torch.equal(items[3]["x"], again[3]["x"])  # seeded
     mv = next(iter(OnTheFlyDataset(mode="mv", cfg=GenConfig(frames=T), sequences=1, samples_per_sequence=1)))
     _check(mv, 8, 8)
+
+
+def test_pose_jitter_turns_all_views_about_the_table_normal(data):
+    from spare_twin.dataset.torch_data import PoseJitter
+
+    clean = MultiViewDataset(data, split="all")[5]
+    turned = MultiViewDataset(data, split="all", pose_jitter=PoseJitter(yaw_deg=10.0, xy_m=0.003))[5]
+    assert torch.equal(turned["x"], clean["x"])  # images untouched, only the frame they are given in
+    J = turned["T_world_camera"].double() @ torch.linalg.inv(clean["T_world_camera"].double())
+    assert torch.allclose(J, J[0].expand_as(J), atol=1e-5)  # one error for the whole sample
+    J = J[0].numpy()
+    yaw = np.degrees(np.arctan2(J[1, 0], J[0, 0]))
+    assert 0 < abs(yaw) <= 10.0 and np.allclose(J[2], [0, 0, 1, 0], atol=1e-6) and abs(J[0, 3]) < 0.02

@@ -63,13 +63,23 @@ def run_batch(args: argparse.Namespace) -> int:
         raise SpareTwinError(f"--batch {root}: no <name>/object and <name>/real folders in it")
     if not args.out:
         raise SpareTwinError("--out TABLE_DIR is needed with --batch")
+    from spare_twin.io import read_json, write_json_atomic
+    from spare_twin.nets.checkpoint import default_model
+
+    model = str(args.model or default_model("predict"))
     results = []
     for d in tqdm(pairs, desc="compare", unit="object", file=sys.stderr):
-        r = compare(d / "object", d / "real", model=args.model, sim_dir=d / "sim_twin")
+        done = d / "compare.json"  # a finished comparison with this model is kept: interrupted batches resume
+        if done.is_file() and read_json(done).get("model") == model:
+            results.append(read_json(done))
+            continue
+        r = compare(d / "object", d / "real", model=model, sim_dir=d / "sim_twin")
         r["name"] = d.name
+        write_json_atomic(done, r)
         results.append(r)
     table = sim2real_table(results)
-    table["instances"] = [{"name": r["name"], "truth": r["truth"], "sim": r["sim"], "real": r["real"], "errors": r["errors"]} for r in results]
+    table["model"] = model
+    table["instances"] = [{k: r.get(k) for k in ("name", "truth", "sim", "real", "real_estimated_frame", "errors")} for r in results]
     files = write_table(table, args.out)
     if args.json:
         print(json.dumps(table))

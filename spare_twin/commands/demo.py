@@ -25,12 +25,6 @@ DEMO_CHAIN = dict(
     colors=("black", "red", "blue", "yellow"),
     name="demo_chain",
 )
-#: A hand-held sweep once round the object: 9 degrees between frames keeps neighbouring views
-#: overlapping enough for ICP (16 frames, 22.5 degrees apart, registered 6-20 degrees off).
-HANDHELD_FRAMES = 40
-#: Loop edges for registration: enough to close the drift of a 40-frame sweep, few enough to be quick.
-LOOP_GAPS = "2,4,8,16"
-HANDHELD_RESOLUTION = "320x240"
 RIG_FRAMES = 20
 SEED = 0
 
@@ -52,28 +46,12 @@ def _step(i: int, what: str) -> None:
     print(f"[{i}/7] {what}", file=sys.stderr, flush=True)
 
 
-def _cli(argv: list[str]) -> None:
-    """Run a spare-twin command in-process; its output goes to stderr (the demo's summary is stdout)."""
-    from contextlib import redirect_stdout
-
-    from spare_twin import SpareTwinError
-    from spare_twin.cli import main
-
-    with redirect_stdout(sys.stderr):
-        code = main(argv)
-    if code:
-        raise SpareTwinError(f"demo: `spare-twin {' '.join(argv)}` failed (exit {code})")
-
-
 def run(args) -> int:
-    import numpy as np
-
-    from spare_twin.capture.export import export_7scenes
     from spare_twin.compare import compare
     from spare_twin.config import ChainSpec
     from spare_twin.nets.predict import predict_recording
     from spare_twin.objects import build_object
-    from spare_twin.recording import Recording
+    from spare_twin.sensor_capture import SensorCaptureConfig, run_cli, simulated_capture
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -85,20 +63,10 @@ def run(args) -> int:
 
     _step(2, "twin simulation: the training rig's 8 cameras")
     rig_rec = out / "sim_rig"
-    _cli(["render", str(obj.root), "--out", str(rig_rec), "--frames", str(RIG_FRAMES), "--seed", str(SEED)])
+    run_cli(["render", str(obj.root), "--out", str(rig_rec), "--frames", str(RIG_FRAMES), "--seed", str(SEED)])
 
-    _step(3, "simulated sensor: a hand-held RealSense-like camera around the printed object")
-    sensor_rec = out / "sensor_capture"
-    _cli(["render", str(obj.root), "--out", str(sensor_rec), "--path", "handheld", "--noise", "realsense_sr300",
-          "--hide-poses", "--resolution", HANDHELD_RESOLUTION, "--frames", str(HANDHELD_FRAMES), "--seed", str(SEED)])
-
-    _step(4, "import: the capture as a 7-Scenes folder, read back by `capture import`")
-    export_7scenes(sensor_rec, out / "sensor_capture_7scenes", poses=False)
-    real_rec = out / "real"
-    _cli(["capture", "import", str(out / "sensor_capture_7scenes"), "--layout", "7scenes", "--out", str(real_rec), "--fps", "10"])
-
-    _step(5, "register: camera poses, TSDF fusion, the object on the table")
-    _cli(["capture", "register", str(real_rec), "--object", "require", "--loop-gaps", LOOP_GAPS])
+    steps = iter(range(3, 6))
+    real_rec = simulated_capture(obj.root, out, SensorCaptureConfig(seed=SEED), step=lambda what: _step(next(steps), what))
 
     _step(6, "predict: the shipped model on the twin and on the capture")
     rig_pred = predict_recording(rig_rec, args.model, progress=False)
@@ -106,15 +74,14 @@ def run(args) -> int:
     _step(7, "compare: twin fitted to the real cloud, rendered through the same cameras, both scored")
     rrd = out / "compare.rrd"
     result = compare(obj.root, real_rec, model=args.model, rrd=rrd, sim_dir=out / "sim_twin")
-    truth_angles = Recording.open(sensor_rec).ground_truth()["joint_angles_rad"][0]
-    angle_err = np.degrees(np.abs((np.asarray(result["registration"]["joint_angles_rad"]) - truth_angles + np.pi) % (2 * np.pi) - np.pi))
+    angle_err = result["errors"]["joint_angles_deg"]
 
     def row(name, d, errors=None):
         lengths = ", ".join(f"{x:.3f}" for x in (d.get("link_lengths_m") or []))
         tail = ""
         if errors is not None and errors.get("E_L") is not None:
             tail = f"   count {'right' if errors['count_correct'] else 'WRONG'}, E_L {errors['E_L']:.4f}"
-        return f"  {name:<22} n = {d['n_links']}   lengths [{lengths}]{tail}"
+        return f"  {name:<27} n = {d['n_links']}   lengths [{lengths}]{tail}"
 
     from spare_twin.compare import score
 
@@ -124,6 +91,7 @@ def run(args) -> int:
     print(row("sim, training rig", rig_pred, score(truth, rig_pred)))
     print(row("sim, same cameras", result["sim"], result["errors"]["sim"]))
     print(row("real (sensor capture)", result["real"], result["errors"]["real"]))
+    print(row("real, predict's own frame", result["real_estimated_frame"], result["errors"]["real_estimated_frame"]))
     print("  joint angles from articulated registration, error vs truth: " + ", ".join(f"{a:.1f}" for a in angle_err) + " deg")
     print(f"  printable files: {obj.root}/ (STLs, {obj.urdf_path.name}, ASSEMBLY.md, preview.png)")
     print(f"  Rerun recording: {rrd}  (open with `rerun {rrd}`)")

@@ -56,23 +56,6 @@ def parse_resolution(text: str, rig) -> tuple[int, int]:
     return w, h
 
 
-def load_noise(name: str):
-    """The DepthNoise of capture/rigs/noise_<name>.json (or a JSON path); None for 'none'."""
-    from pathlib import Path
-
-    from spare_twin import SpareTwinError
-    from spare_twin.sim.noise import DepthNoise
-    from spare_twin.sim.rig import RIGS_DIR
-
-    if name == "none":
-        return None
-    p = Path(name) if name.endswith(".json") else RIGS_DIR / f"noise_{name}.json"
-    if not p.is_file():
-        have = sorted(q.stem[len("noise_"):] for q in RIGS_DIR.glob("noise_*.json"))
-        raise SpareTwinError(f"--noise {name}: no such noise model ({p}; have: {', '.join(have) or 'none'})")
-    return DepthNoise.from_json_file(p)
-
-
 def run(args: argparse.Namespace) -> int:
     import sys
 
@@ -95,7 +78,9 @@ def run(args: argparse.Namespace) -> int:
     obj = load_object(args.object_dir)
     rig = load_rig(args.rig)
     W, H = parse_resolution(args.resolution, rig)
-    noise = load_noise(args.noise)
+    from spare_twin.sim.noise import load_noise
+
+    noise = load_noise(args.noise, flag="--noise")
     K = rig.K(W, H)
     angles = random_motion(obj.joint_limits_rad, obj.link_lengths_phys_m, obj.keepout_height_m, obj.link_half_width_m,
                            np.random.default_rng(args.seed), MotionConfig(n_frames=args.frames, fps=args.fps))

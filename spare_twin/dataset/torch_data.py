@@ -16,6 +16,7 @@ HDF5 files are opened lazily in each data-loader worker (h5py handles must not c
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -45,9 +46,34 @@ def grey_jitter(x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
     return np.clip(np.clip(x * gain + offset, 0, 1) ** gamma, 0, 1).astype(np.float32)
 
 
+@dataclass(frozen=True)
+class PoseJitter:
+    """A random error of the frame the camera poses are given in, one per sample (all its views).
+
+    A real recording reaches the network through an estimated object frame: the base from the foot's
+    socket boss (1.6-5 mm off) and the yaw from the links' layers (up to 20 deg off on long chains,
+    docs/canonical.md). Training with this error teaches the pose-aware networks to count and measure
+    through it."""
+
+    yaw_deg: float = 0.0
+    """Rotation about the table normal, uniform in +-yaw_deg."""
+    xy_m: float = 0.0
+    """Shift along the table, normal with this std per axis."""
+
+    def apply(self, T_world_camera: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        a = math.radians(rng.uniform(-self.yaw_deg, self.yaw_deg))
+        J = np.eye(4)
+        J[:2, :2] = [[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]]
+        J[:2, 3] = rng.normal(0.0, self.xy_m, 2)
+        return J @ np.asarray(T_world_camera, np.float64)
+
+
 def make_sample(images, depth_scale, modality, n_links, lengths_label, joints, K, T_wc, print_scale,
-                noise: DepthNoise | None = None, jitter_grey: bool = False, rng=None) -> dict:
+                noise: DepthNoise | None = None, jitter_grey: bool = False, rng=None,
+                pose_jitter: PoseJitter | None = None) -> dict:
     """The contract dict from raw stored arrays (images uint16 depth units or uint8 grey)."""
+    if pose_jitter is not None:
+        T_wc = pose_jitter.apply(T_wc, rng)
     if modality == "depth":
         x = images.astype(np.float32) * np.float32(depth_scale)
         if noise is not None:
@@ -78,7 +104,8 @@ class SpareDataset(Dataset):
     """
 
     def __init__(self, root: str | Path, split: str = "train", mode: str = "mv", modality: str = "depth",
-                 frame_stride: int = 1, depth_noise: DepthNoise | None = None, jitter_grey: bool = False, seed: int = 0):
+                 frame_stride: int = 1, depth_noise: DepthNoise | None = None, jitter_grey: bool = False, seed: int = 0,
+                 pose_jitter: PoseJitter | None = None):
         _check(mode, modality)
         self.root = Path(root)
         self.manifest = load_manifest(self.root)
@@ -89,6 +116,7 @@ class SpareDataset(Dataset):
         self.V, self.T = self.manifest["cameras"], self.manifest["frames"]
         self.times = list(range(0, self.T, frame_stride))
         self.noise, self.jitter_grey, self.seed = depth_noise, jitter_grey, seed
+        self.pose_jitter = pose_jitter
         self._files: dict = {}
         self._pid = None
 
@@ -120,7 +148,8 @@ class SpareDataset(Dataset):
         row = self.rows[i // per]
         j = i % per
         f = self._file(row)
-        rng = np.random.default_rng([self.seed, i, torch.initial_seed() % (2**32)]) if (self.noise or self.jitter_grey) else None
+        augmented = self.noise or self.jitter_grey or self.pose_jitter
+        rng = np.random.default_rng([self.seed, i, torch.initial_seed() % (2**32)]) if augmented else None
         n = int(f.attrs["n_links"])
         if self.mode == "mv":
             t = self.times[j]
@@ -130,7 +159,7 @@ class SpareDataset(Dataset):
             imgs = f[self.modality][j]
             joints, K, T_wc = f["joint_angles_rad"][()], f["K"][j : j + 1], f["T_world_camera"][j : j + 1]
         return make_sample(imgs, f.attrs["depth_scale"], self.modality, n, f["lengths_label_m"][()], joints, K, T_wc,
-                           f.attrs["print_scale"], self.noise, self.jitter_grey, rng)
+                           f.attrs["print_scale"], self.noise, self.jitter_grey, rng, self.pose_jitter)
 
 
 def MultiViewDataset(root, split="train", modality="depth", **kw) -> SpareDataset:
@@ -154,11 +183,11 @@ class OnTheFlyDataset(IterableDataset):
 
     def __init__(self, mode: str = "mv", modality: str = "depth", cfg: GenConfig = GenConfig(), seed: int = 1,
                  sequences: int | None = None, samples_per_sequence: int = 8, first_index: int = 0,
-                 depth_noise: DepthNoise | None = None, jitter_grey: bool = False):
+                 depth_noise: DepthNoise | None = None, jitter_grey: bool = False, pose_jitter: PoseJitter | None = None):
         _check(mode, modality)
         self.mode, self.modality, self.cfg, self.seed = mode, modality, cfg, seed
         self.sequences, self.per_seq, self.first_index = sequences, samples_per_sequence, first_index
-        self.noise, self.jitter_grey = depth_noise, jitter_grey
+        self.noise, self.jitter_grey, self.pose_jitter = depth_noise, jitter_grey, pose_jitter
         self.epoch = 0
 
     def set_epoch(self, epoch: int) -> None:
@@ -190,7 +219,8 @@ class OnTheFlyDataset(IterableDataset):
                     else:
                         imgs, joints, K, T_wc = images[j], seq.joint_angles_rad, seq.K[j : j + 1], seq.T_world_camera[j : j + 1]
                     yield make_sample(imgs, seq.depth_scale, self.modality, seq.spec.n_links, seq.spec.label_lengths(),
-                                      joints, K, T_wc, seq.spec.print_scale, self.noise, self.jitter_grey, rng)
+                                      joints, K, T_wc, seq.spec.print_scale, self.noise, self.jitter_grey, rng,
+                                      self.pose_jitter)
                 k += nw
         finally:
             twin.close()

@@ -11,7 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from spare_twin import SpareTwinError
-from spare_twin.nets.presets import NetConfig
+from spare_twin.nets.presets import NetConfig, TrainConfig
 
 
 def _is_synthetic(data_dir: Path) -> bool:
@@ -31,8 +31,24 @@ def _check_dir(data_dir) -> Path:
     return data_dir
 
 
-def open_split(data_dir, split: str, net: NetConfig):
-    """The map Dataset of one split ("train", "val", "test") for this network's mode and input."""
+def augmentation(tr: TrainConfig | None) -> dict:
+    """The read-time sim-to-real augmentation keyword arguments of the torch datasets for `tr`."""
+    if tr is None:
+        return {}
+    from spare_twin.dataset.torch_data import PoseJitter
+    from spare_twin.sim.noise import load_noise
+
+    out = {}
+    if tr.depth_noise:
+        out["depth_noise"] = load_noise(tr.depth_noise, flag="train.depth_noise")
+    if tr.pose_yaw_jitter_deg or tr.pose_xy_jitter_m:
+        out["pose_jitter"] = PoseJitter(tr.pose_yaw_jitter_deg, tr.pose_xy_jitter_m)
+    return out
+
+
+def open_split(data_dir, split: str, net: NetConfig, augment: TrainConfig | None = None):
+    """The map Dataset of one split ("train", "val", "test") for this network's mode and input, with
+    the sim-to-real augmentation of `augment` (a TrainConfig) applied at read time."""
     data_dir = _check_dir(data_dir)
     if _is_synthetic(data_dir):
         from spare_twin.nets.synthetic import SyntheticDataset, read_spec
@@ -42,23 +58,28 @@ def open_split(data_dir, split: str, net: NetConfig):
             raise SpareTwinError(
                 f"--data {data_dir}: synthetic {spec.mode}/{spec.input} data, but the network wants {net.mode}/{net.input}"
             )
+        if augmentation(augment):
+            raise SpareTwinError(f"--data {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data")
         return SyntheticDataset(spec, split)
     if not (data_dir / "manifest.json").is_file():
         raise SpareTwinError(f"--data {data_dir}: not a dataset (no manifest.json; make one with spare-twin dataset)")
     from spare_twin.dataset.torch_data import SpareDataset
 
-    ds = SpareDataset(data_dir, split=split, mode=net.mode, modality=net.input)
+    ds = SpareDataset(data_dir, split=split, mode=net.mode, modality=net.input, seed=augment.seed if augment else 0,
+                      **augmentation(augment))
     if len(ds) == 0:
         raise SpareTwinError(f"--data {data_dir}: the {split} split is empty")
     return ds
 
 
-def open_on_the_fly(data_dir, net: NetConfig, seed: int, samples: int | None = None):
+def open_on_the_fly(data_dir, net: NetConfig, seed: int, samples: int | None = None, augment: TrainConfig | None = None):
     """An IterableDataset of freshly rendered samples (--on-the-fly), same generator as the stored data."""
     data_dir = _check_dir(data_dir)
     if _is_synthetic(data_dir):
         from spare_twin.nets.synthetic import SyntheticOnTheFly, read_spec
 
+        if augmentation(augment):
+            raise SpareTwinError(f"--data {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data")
         return SyntheticOnTheFly(read_spec(data_dir), seed)
     from spare_twin.dataset.generate import GenConfig
     from spare_twin.dataset.torch_data import OnTheFlyDataset
@@ -68,7 +89,7 @@ def open_on_the_fly(data_dir, net: NetConfig, seed: int, samples: int | None = N
     sequences = None if samples is None else -(-samples // per_seq)
     # a seed far from the stored dataset's, so fresh sequences never repeat stored (test!) ones
     return OnTheFlyDataset(net.mode, net.input, GenConfig.from_dict(m["generator"]), seed=10_000 + seed,
-                           sequences=sequences, samples_per_sequence=per_seq)
+                           sequences=sequences, samples_per_sequence=per_seq, **augmentation(augment))
 
 
 def dataset_rig(data_dir) -> str | None:

@@ -131,14 +131,17 @@ def _posed_views(rec, net: NetConfig, frame: int | None, camera: str | None, T_c
 
 def recording_batches(rec, net: NetConfig, training_rig: str | None, frame: int | None = None,
                       camera: str | None = None, print_scale: float | None = None, workdir=None,
-                      progress: bool = True, yaw_hypotheses: int = 4) -> tuple[list[dict], tuple[float, ...], str]:
+                      progress: bool = True, yaw_hypotheses: int = 4,
+                      T_world_base: np.ndarray | None = None) -> tuple[list[dict], tuple[float, ...], str]:
     """The network inputs for a recording, one batch per yaw hypothesis, the yaws and the method:
 
     - "rig": the recording is the training rig (or the model does not name its rig): its own views;
     - "posed": voxel networks take posed views directly, in the canonical object frame (a simulation
       world as it is; a real recording registered, its poses moved by the inverse object pose of each
       yaw hypothesis of `capture.canonical.object_frame`);
-    - "fused" / "sim-views": other networks see `capture.canonical.to_rig_views`.
+    - "fused" / "sim-views": other networks see `capture.canonical.to_rig_views`;
+    - "posed-given": `T_world_base` (the object's base pose in the recording's world, e.g. from
+      articulated registration) is the canonical frame, for voxel networks on posed recordings.
     """
     import tempfile
 
@@ -149,6 +152,9 @@ def recording_batches(rec, net: NetConfig, training_rig: str | None, frame: int 
     if training_rig is None or rec.rig == training_rig:
         return [recording_sample(rec, net, frame, camera, print_scale)], (0.0,), "rig"
     if net.arch == "geo_voxel" and net.mode == "mv":
+        if T_world_base is not None:
+            views = _posed_views(rec, net, frame, camera, np.linalg.inv(T_world_base))
+            return [_batch(views, net, ps)], (0.0,), "posed-given"
         if _sim_world(rec):
             if len(rec.cameras) == net.frames:
                 return [recording_sample(rec, net, frame, camera, print_scale)], (0.0,), "posed"
@@ -184,9 +190,11 @@ def _canonical_batch(cv, k: int, net: NetConfig, camera: str | None, print_scale
 
 def predict_recording(rec_dir, model_path=None, frame: int | None = None, camera: str | None = None,
                       print_scale: float | None = None, n_links: int | None = None, device: str = "cpu",
-                      progress: bool = True, yaw_hypotheses: int = 4, return_input: bool = False) -> dict:
+                      progress: bool = True, yaw_hypotheses: int = 4, return_input: bool = False,
+                      T_world_base: np.ndarray | None = None) -> dict:
     """The network's prediction for a recording; `return_input` adds `network_input`, the (V, H, W)
-    views it saw for the chosen yaw (numpy, not JSON: for logging)."""
+    views it saw for the chosen yaw (numpy, not JSON: for logging). `T_world_base` fixes the object
+    frame of a posed recording for voxel networks (see `recording_batches`)."""
     from spare_twin.recording import Recording
 
     model_path = model_path or ckpt.default_model("predict")
@@ -195,7 +203,7 @@ def predict_recording(rec_dir, model_path=None, frame: int | None = None, camera
     if frame is not None and not 0 <= frame < rec.n_frames:
         raise SpareTwinError(f"--frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
     batches, yaws, method = recording_batches(rec, net, ck["meta"].get("rig"), frame, camera, print_scale,
-                                              progress=progress, yaw_hypotheses=yaw_hypotheses)
+                                              progress=progress, yaw_hypotheses=yaw_hypotheses, T_world_base=T_world_base)
     batch = {k: torch.cat([b[k] for b in batches]) for k in batches[0]}  # one forward pass for all yaws
     true_n = None
     if net.arch == "conv3d_per_n":

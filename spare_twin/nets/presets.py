@@ -109,6 +109,16 @@ class TrainConfig:
     label_smoothing: float = 0.0
     augment_flip_views: bool = False
     """mv image nets: randomly roll the view order (the rig is a ring), a cheap view augmentation."""
+    depth_noise: str | None = None
+    """Sim-to-real: the depth-sensor noise model (capture/rigs/noise_NAME.json, e.g. realsense_sr300)
+    applied to training depth images at read time."""
+    pose_yaw_jitter_deg: float = 0.0
+    """Sim-to-real: the camera poses of a training sample turned about the table normal by up to this
+    much (the yaw error of a real recording's estimated object frame)."""
+    pose_xy_jitter_m: float = 0.0
+    """Sim-to-real: and shifted along the table by this std per axis (its base error)."""
+    init_from: str | None = None
+    """Fine-tune: start from this checkpoint's weights (same network configuration) instead of random ones."""
     workers: int = 0
     """DataLoader worker processes (0: load in the training process)."""
     threads: int = 0

@@ -166,7 +166,7 @@ def train(
     torch.manual_seed(tr.seed)
     np.random.seed(tr.seed)
     model = build_model(net).to(dev)
-    stored_train = open_split(data_dir, "train", net)
+    stored_train = open_split(data_dir, "train", net, augment=tr)
     train_src = stored_train  # with --on-the-fly, fresh samples are drawn per epoch below
     try:
         val_ds = open_split(data_dir, "val", net)
@@ -189,6 +189,13 @@ def train(
         history, start_epoch = state["history"], state["epoch"] + 1
         best_score, train_time_s = state["best_score"], state["train_time_s"]
         meta = state["meta"]
+    elif tr.init_from:
+        start = ckpt.load(tr.init_from, dev)
+        if start.get("net") != ckpt.model_record(preset.name, net, tr, model, {})["net"]:
+            raise SpareTwinError(f"init_from {tr.init_from}: trained with a different network configuration")
+        model.load_state_dict(start["state_dict"])  # its input normalisation comes with it
+        meta["init_from"] = {"path": str(tr.init_from), "preset": start.get("preset"),
+                             "epochs_trained": start.get("meta", {}).get("epochs_trained")}
     else:
         measure_normalization(model, stored_train, tr.seed)
 
@@ -203,7 +210,7 @@ def train(
             g["lr"] = lr
         if on_the_fly:
             n_ep = tr.samples_per_epoch or len(stored_train)
-            src = open_on_the_fly(data_dir, net, tr.seed * 100_003 + epoch, n_ep)
+            src = open_on_the_fly(data_dir, net, tr.seed * 100_003 + epoch, n_ep, augment=tr)
             loader = torch.utils.data.DataLoader(src, batch_size=tr.batch_size, num_workers=tr.workers)
             n_batches = math.ceil(n_ep / tr.batch_size)
         else:

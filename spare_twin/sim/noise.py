@@ -102,6 +102,19 @@ class DepthNoise:
         return cls(**d)
 
 
+def load_noise(name: str, flag: str = "noise model") -> DepthNoise | None:
+    """The DepthNoise of capture/rigs/noise_<name>.json (or a JSON path); None for 'none'."""
+    from spare_twin.sim.rig import RIGS_DIR
+
+    if name == "none":
+        return None
+    p = Path(name) if name.endswith(".json") else RIGS_DIR / f"noise_{name}.json"
+    if not p.is_file():
+        have = sorted(q.stem[len("noise_"):] for q in RIGS_DIR.glob("noise_*.json"))
+        raise SpareTwinError(f"{flag} {name}: no such noise model ({p}; have: {', '.join(have) or 'none'})")
+    return DepthNoise.from_json_file(p)
+
+
 def _rows_stats(depths: list[np.ndarray], jump_rel: float, max_gap: int = 10):
     res_z, res_r, diffs_z, diffs = [], [], [], []
     edges_gap, iso, iso_den = [], 0, 0
