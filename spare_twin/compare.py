@@ -12,12 +12,12 @@
 from __future__ import annotations
 
 import sys
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin import SpareTwinError, __version__
 from spare_twin.config import LABEL_SLOTS, COLORS
 
 
@@ -30,7 +30,14 @@ class CompareConfig:
     rrd_every: int = 1
     """Log every n-th frame of the two recordings to the .rrd."""
     fit_views: int = 20
-    """Depth frames of the real recording, spread over it, that decide between a fit and its mirror."""
+    """Depth frames of the real recording, spread over it, that the articulated fit renders and compares."""
+
+    def settings(self) -> dict:
+        """Everything that shapes a comparison besides its inputs and model: a batch reuses a
+        finished comparison only when these match."""
+        from spare_twin.articulated import FitConfig
+
+        return {"compare": asdict(self), "fit": asdict(FitConfig()), "version": __version__}
 
 
 def padded(lengths) -> np.ndarray:
@@ -86,7 +93,7 @@ def render_twin_through(obj, joint_angles_rad, T_world_base: np.ndarray, real, o
 
 def depth_views(real, T_object_world: np.ndarray, count: int) -> list:
     """`count` depth frames spread over every posed camera of `real`, posed in the object frame."""
-    from spare_twin.articulated import DepthView
+    from spare_twin.depth_fit import DepthView
 
     views = []
     for c in real.cameras:
@@ -144,11 +151,13 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
             "rmse_m": fit.rmse_m,
             "inlier_fraction": fit.inlier_fraction,
             "depth_error_m": fit.depth_error_m,
+            "camera_corrections_mm_deg": [list(c) for c in fit.view_corrections],
         },
         "errors": {"sim": score(truth, sim_pred), "real": score(truth, real_pred),
                    "real_estimated_frame": score(truth, own_pred), "joint_angles_deg": None},
         "sim_recording": str(sim_dir),
         "model": real_pred.get("model"),
+        "settings": cfg.settings(),
     }
     if truth["joint_angles_rad"] is not None:
         diff = np.asarray(fit.joint_angles_rad) - np.asarray(truth["joint_angles_rad"])

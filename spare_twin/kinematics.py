@@ -31,6 +31,15 @@ def rot_y(angle_rad: float) -> np.ndarray:
     return T
 
 
+def base_pose(x_m: float, y_m: float, yaw_rad: float) -> np.ndarray:
+    """4x4 pose of a base standing on the table (z = 0): at (x, y), turned by yaw about z."""
+    c, s = math.cos(yaw_rad), math.sin(yaw_rad)
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[:2, 3] = x_m, y_m
+    return T
+
+
 def forward_kinematics(spec: ChainSpec, joint_angles_rad, T_world_base: np.ndarray | None = None) -> np.ndarray:
     """(n + 1, 4, 4) poses of links 0..n in the world frame."""
     angles = np.asarray(joint_angles_rad, dtype=np.float64).reshape(-1)

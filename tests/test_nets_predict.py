@@ -79,3 +79,18 @@ def test_default_model_registry(tmp_path):
 
     with pytest.raises(SpareTwinError):
         ckpt.default_model("predict", tmp_path)
+
+
+def test_fit_view_samples_where_its_intrinsics_say():
+    """A nearest-neighbour resize keeps each output pixel's ray: the source pixel it copies lies on
+    the ray the new intrinsics give that output pixel (a 5x reduction, 640x480 -> 128x96)."""
+    from spare_twin.capture.frames import fit_view
+
+    K = np.array([[500.0, 0, 321.3], [0, 500.0, 238.7], [0, 0, 1]])
+    columns = np.tile(np.arange(640, dtype=np.float32), (480, 1))
+    rows = np.tile(np.arange(480, dtype=np.float32)[:, None], (1, 640))
+    out_u, K2 = fit_view(columns, K, 96, 128, nearest=True)
+    out_v, _ = fit_view(rows, K, 96, 128, nearest=True)
+    u2, v2 = np.meshgrid(np.arange(128), np.arange(96))
+    np.testing.assert_allclose((out_u - K[0, 2]) / K[0, 0], (u2 - K2[0, 2]) / K2[0, 0], atol=1e-9)
+    np.testing.assert_allclose((out_v - K[1, 2]) / K[1, 1], (v2 - K2[1, 2]) / K2[1, 1], atol=1e-9)

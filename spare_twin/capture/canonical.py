@@ -386,7 +386,7 @@ def _own_views(rec, rig, frame: int) -> CanonicalViews:
     """No-op path: the training rig's own cameras, resized to the network resolution."""
     import cv2
 
-    from spare_twin.nets.predict import fit_view
+    from spare_twin.capture.frames import fit_view
 
     H, W = rig.height, rig.width
     depth, grey, mask, Ks, Ts = [], [], [], [], []

@@ -1,4 +1,5 @@
-"""Shared helpers for RGB-D frames: depth sanity checks, intrinsics parsing, open3d conversions."""
+"""Shared helpers for RGB-D frames: depth sanity checks, intrinsics parsing, resizing with the
+intrinsics that follow, back-projection, open3d conversions."""
 
 from __future__ import annotations
 
@@ -112,6 +113,37 @@ def o3d_intrinsic(K: np.ndarray, width: int, height: int):
     import open3d as o3d
 
     return o3d.camera.PinholeCameraIntrinsic(int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+
+
+def fit_view(img: np.ndarray, K: np.ndarray, height: int, width: int, nearest: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Centre-crop to width:height aspect, resize to (height, width); K follows the crop and scale."""
+    import cv2
+
+    h, w = img.shape[:2]
+    if w * height > h * width:  # too wide: crop columns
+        cw, ch = int(round(h * width / height)), h
+    else:
+        cw, ch = w, int(round(w * height / width))
+    x0, y0 = (w - cw) // 2, (h - ch) // 2
+    img = img[y0 : y0 + ch, x0 : x0 + cw]
+    # INTER_NEAREST_EXACT samples at pixel centres, as K assumes; INTER_NEAREST is up to a pixel off
+    out = cv2.resize(img, (width, height), interpolation=cv2.INTER_NEAREST_EXACT if nearest else cv2.INTER_AREA)
+    sx, sy = width / cw, height / ch
+    K2 = np.asarray(K, np.float64).copy()
+    # pixel-centre convention: u' + 0.5 = (u - x0 + 0.5) * s
+    K2[0, 0] *= sx
+    K2[1, 1] *= sy
+    K2[0, 2] = (K2[0, 2] - x0 + 0.5) * sx - 0.5
+    K2[1, 2] = (K2[1, 2] - y0 + 0.5) * sy - 0.5
+    return out, K2
+
+
+def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) float64 camera-frame points (OpenCV axes, metres) of the pixels with depth (and `mask`)."""
+    valid = depth_m > 0 if mask is None else mask & (depth_m > 0)
+    v, u = np.nonzero(valid)
+    z = depth_m[v, u].astype(np.float64)
+    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
 
 
 def rotation_error_deg(R: np.ndarray) -> float:

@@ -69,8 +69,8 @@ def run_batch(args: argparse.Namespace) -> int:
     model = str(args.model or default_model("predict"))
     results = []
     for d in tqdm(pairs, desc="compare", unit="object", file=sys.stderr):
-        done = d / "compare.json"  # a finished comparison with this model is kept: interrupted batches resume
-        if done.is_file() and read_json(done).get("model") == model:
+        done = d / "compare.json"  # a finished comparison, same model and settings, is kept: batches resume
+        if done.is_file() and _reusable(read_json(done), model):
             results.append(read_json(done))
             continue
         r = compare(d / "object", d / "real", model=model, sim_dir=d / "sim_twin")
@@ -87,3 +87,11 @@ def run_batch(args: argparse.Namespace) -> int:
         print(table_markdown(table), end="")
         print(f"wrote {', '.join(files.values())}")
     return 0
+
+
+def _reusable(previous: dict, model: str) -> bool:
+    import json
+
+    from spare_twin.compare import CompareConfig
+
+    return previous.get("model") == model and previous.get("settings") == json.loads(json.dumps(CompareConfig().settings()))

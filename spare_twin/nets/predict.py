@@ -17,33 +17,12 @@ import numpy as np
 import torch
 
 from spare_twin import SpareTwinError
+from spare_twin.capture.frames import fit_view
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.models import decode, model_inputs
 from spare_twin.nets.presets import NetConfig
 
 DEFAULT_PRINT_SCALE = 0.08  # ChainSpec's default, for recordings that do not carry their object
-
-
-def fit_view(img: np.ndarray, K: np.ndarray, height: int, width: int, nearest: bool) -> tuple[np.ndarray, np.ndarray]:
-    """Centre-crop to width:height aspect, resize to (height, width); K follows the crop and scale."""
-    import cv2
-
-    h, w = img.shape[:2]
-    if w * height > h * width:  # too wide: crop columns
-        cw, ch = int(round(h * width / height)), h
-    else:
-        cw, ch = w, int(round(w * height / width))
-    x0, y0 = (w - cw) // 2, (h - ch) // 2
-    img = img[y0 : y0 + ch, x0 : x0 + cw]
-    out = cv2.resize(img, (width, height), interpolation=cv2.INTER_NEAREST if nearest else cv2.INTER_AREA)
-    sx, sy = width / cw, height / ch
-    K2 = np.asarray(K, np.float64).copy()
-    # pixel-centre convention: u' + 0.5 = (u - x0 + 0.5) * s
-    K2[0, 0] *= sx
-    K2[1, 1] *= sy
-    K2[0, 2] = (K2[0, 2] - x0 + 0.5) * sx - 0.5
-    K2[1, 2] = (K2[1, 2] - y0 + 0.5) * sy - 0.5
-    return out, K2
 
 
 def _view(rec, cam, frame: int, net: NetConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
