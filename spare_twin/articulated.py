@@ -83,6 +83,12 @@ class ArticulatedFit:
     view_corrections: tuple = ()
     """With depth views: the mean camera-pose correction of each alignment round (millimetres, degrees)."""
 
+    @property
+    def params(self) -> np.ndarray:
+        """(n + 3,) base x, y, yaw and the joint angles: the search's parameter vector."""
+        T = self.T_world_base
+        return np.array([T[0, 3], T[1, 3], np.arctan2(T[1, 0], T[0, 0]), *self.joint_angles_rad])
+
 
 def twin_link_meshes(obj: ObjectFolder) -> list:
     """Each link's printed parts as one trimesh in that link's frame (metres), read through the URDF:

@@ -93,15 +93,34 @@ def render_twin_through(obj, joint_angles_rad, T_world_base: np.ndarray, real, o
 
 def depth_views(real, T_object_world: np.ndarray, count: int) -> list:
     """`count` depth frames spread over every posed camera of `real`, posed in the object frame."""
+    return [view for _, view in _posed_depth_views(real, T_object_world, count)]
+
+
+def aligned_camera_poses(obj, real, fit, T_world_object: np.ndarray) -> dict:
+    """{(camera, frame): T_world_camera} for every posed frame of `real`, re-aligned onto the fitted
+    twin (`depth_fit.DepthScorer.align_views`). Whole-frame registration leaves the cameras a few
+    millimetres and a degree or two apart; the network's views, fused in its voxel grid, want them
+    consistent with each other."""
+    from spare_twin.depth_fit import DepthScorer
+
+    keyed = _posed_depth_views(real, np.linalg.inv(T_world_object), real.n_frames)
+    with DepthScorer(obj, [view for _, view in keyed]) as scorer:
+        for _ in range(2):  # the second round takes the last millimetre (as in the fit)
+            scorer.align_views(fit.params)
+        return {key: T_world_object @ view.T_cloud_camera for (key, _), view in zip(keyed, scorer.views)}
+
+
+def _posed_depth_views(real, T_object_world: np.ndarray, count: int) -> list:
     from spare_twin.depth_fit import DepthView
 
-    views = []
+    out = []
     for c in real.cameras:
         if c.poses == "unknown":
             continue
         for f in np.unique(np.linspace(0, real.n_frames - 1, count).round().astype(int)):
-            views.append(DepthView(real.depth_m(c.name, int(f)), np.asarray(c.K), T_object_world @ real.T_world_camera(c.name, int(f))))
-    return views
+            T = T_object_world @ real.T_world_camera(c.name, int(f))
+            out.append(((c.name, int(f)), DepthView(real.depth_m(c.name, int(f)), np.asarray(c.K), T)))
+    return out
 
 
 def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: CompareConfig = CompareConfig()) -> dict:
@@ -133,7 +152,8 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
     # views are placed by the registered base pose. `real_estimated_frame` is what `predict` alone
     # makes of the recording, with its own frame estimate and yaw hypotheses.
     sim_pred = predict_recording(sim_dir, model, progress=False, return_input=rrd is not None)
-    real_pred = predict_recording(real.root, model, progress=False, return_input=rrd is not None, T_world_base=T_world_base)
+    real_pred = predict_recording(real.root, model, progress=False, return_input=rrd is not None, T_world_base=T_world_base,
+                                  camera_poses=aligned_camera_poses(obj, real, fit, T_world_object))
     own_pred = predict_recording(real.root, model, progress=False)
     truth = {"n_links": obj.spec.n_links, "link_lengths_m": list(obj.spec.link_lengths_m)}
     gt = real.ground_truth()

@@ -88,10 +88,12 @@ def _sim_world(rec) -> bool:
             and all(c.poses != "unknown" for c in rec.cameras))
 
 
-def _posed_views(rec, net: NetConfig, frame: int | None, camera: str | None, T_canonical_world: np.ndarray) -> list:
+def _posed_views(rec, net: NetConfig, frame: int | None, camera: str | None, T_canonical_world: np.ndarray,
+                 camera_poses: dict | None = None) -> list:
     """net.frames posed views for the voxel network, poses moved into the canonical frame: the
     recording's cameras at `frame` when it has that many posed ones, else frames of one camera spread
-    over the recording (a hand-held sweep round a still object)."""
+    over the recording (a hand-held sweep round a still object). `camera_poses` ({(camera, frame):
+    T_world_camera}) overrides the recording's poses where it has them."""
     posed = [c for c in rec.cameras if c.poses != "unknown"]
     if not posed:
         raise SpareTwinError(f"{rec.root}: camera poses unknown; run `spare-twin capture register` first")
@@ -104,14 +106,15 @@ def _posed_views(rec, net: NetConfig, frame: int | None, camera: str | None, T_c
     views = []
     for cam, f in picks:
         img, K, T = _view(rec, cam, f, net)
+        T = (camera_poses or {}).get((cam, f), T)
         views.append((img, K, T_canonical_world @ T))
     return views
 
 
 def recording_batches(rec, net: NetConfig, training_rig: str | None, frame: int | None = None,
                       camera: str | None = None, print_scale: float | None = None, workdir=None,
-                      progress: bool = True, yaw_hypotheses: int = 4,
-                      T_world_base: np.ndarray | None = None) -> tuple[list[dict], tuple[float, ...], str]:
+                      progress: bool = True, yaw_hypotheses: int = 4, T_world_base: np.ndarray | None = None,
+                      camera_poses: dict | None = None) -> tuple[list[dict], tuple[float, ...], str]:
     """The network inputs for a recording, one batch per yaw hypothesis, the yaws and the method:
 
     - "rig": the recording is the training rig (or the model does not name its rig): its own views;
@@ -120,7 +123,8 @@ def recording_batches(rec, net: NetConfig, training_rig: str | None, frame: int 
       yaw hypothesis of `capture.canonical.object_frame`);
     - "fused" / "sim-views": other networks see `capture.canonical.to_rig_views`;
     - "posed-given": `T_world_base` (the object's base pose in the recording's world, e.g. from
-      articulated registration) is the canonical frame, for voxel networks on posed recordings.
+      articulated registration) is the canonical frame, for voxel networks on posed recordings;
+      `camera_poses` may refine the recording's camera poses (e.g. re-aligned onto the fitted twin).
     """
     import tempfile
 
@@ -132,7 +136,7 @@ def recording_batches(rec, net: NetConfig, training_rig: str | None, frame: int 
         return [recording_sample(rec, net, frame, camera, print_scale)], (0.0,), "rig"
     if net.arch == "geo_voxel" and net.mode == "mv":
         if T_world_base is not None:
-            views = _posed_views(rec, net, frame, camera, np.linalg.inv(T_world_base))
+            views = _posed_views(rec, net, frame, camera, np.linalg.inv(T_world_base), camera_poses)
             return [_batch(views, net, ps)], (0.0,), "posed-given"
         if _sim_world(rec):
             if len(rec.cameras) == net.frames:
@@ -170,10 +174,11 @@ def _canonical_batch(cv, k: int, net: NetConfig, camera: str | None, print_scale
 def predict_recording(rec_dir, model_path=None, frame: int | None = None, camera: str | None = None,
                       print_scale: float | None = None, n_links: int | None = None, device: str = "cpu",
                       progress: bool = True, yaw_hypotheses: int = 4, return_input: bool = False,
-                      T_world_base: np.ndarray | None = None) -> dict:
+                      T_world_base: np.ndarray | None = None, camera_poses: dict | None = None) -> dict:
     """The network's prediction for a recording; `return_input` adds `network_input`, the (V, H, W)
     views it saw for the chosen yaw (numpy, not JSON: for logging). `T_world_base` fixes the object
-    frame of a posed recording for voxel networks (see `recording_batches`)."""
+    frame of a posed recording for voxel networks, `camera_poses` refines its camera poses (see
+    `recording_batches`)."""
     from spare_twin.recording import Recording
 
     model_path = model_path or ckpt.default_model("predict")
@@ -182,7 +187,8 @@ def predict_recording(rec_dir, model_path=None, frame: int | None = None, camera
     if frame is not None and not 0 <= frame < rec.n_frames:
         raise SpareTwinError(f"--frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
     batches, yaws, method = recording_batches(rec, net, ck["meta"].get("rig"), frame, camera, print_scale,
-                                              progress=progress, yaw_hypotheses=yaw_hypotheses, T_world_base=T_world_base)
+                                              progress=progress, yaw_hypotheses=yaw_hypotheses, T_world_base=T_world_base,
+                                              camera_poses=camera_poses)
     batch = {k: torch.cat([b[k] for b in batches]) for k in batches[0]}  # one forward pass for all yaws
     true_n = None
     if net.arch == "conv3d_per_n":
