@@ -8,12 +8,13 @@ view's camera (pybullet) and its depth compared pixel by pixel. Three refinement
 - `DepthScorer.refine_joints`: each joint over its whole range, base outwards (escapes a folding
   the cloud search settled in);
 - `DepthScorer.polish`: a pattern search on every parameter with shrinking steps; besides single
-  coordinates it turns neighbouring joints in opposite directions, which moves a link while the
-  rest of the chain keeps its direction (a coupled move single steps cannot make);
+  coordinates it makes the coupled moves single steps cannot (neighbouring joints turned against
+  each other, so one link turns while the rest of the chain keeps its direction);
 - `DepthScorer.align_views`: the camera poses themselves. They come from registering whole frames,
-  which the table dominates; a few millimetres off, they cap the joint-angle accuracy at about 10
-  degrees on 2 cm links. Each view is re-aligned by point-to-plane ICP onto what it should see:
-  the posed twin rendered through it, and the table plane around it (model-based tracking).
+  which the table dominates; 2-5 mm off, they cap the joint-angle accuracy at about 9 degrees on
+  2 cm links (1.3 degrees with the true poses). Each view is re-aligned by point-to-plane ICP onto
+  what it should see: the posed twin rendered through it, and the table plane around it
+  (model-based tracking).
 """
 
 from __future__ import annotations
