@@ -5,8 +5,9 @@
    table and joint angles (`spare_twin.articulated`).
 3. The twin, posed so, is rendered through the very cameras of the real recording: a simulated
    recording with the same intrinsics, poses and frame count, but no sensor noise.
-4. The same network runs on both recordings through the same path (`predict_recording`), and both
-   predictions are scored against the configuration that was printed.
+4. The same network runs on both recordings through the same path (`predict_recording`), the real
+   views placed by camera poses re-aligned onto the fitted twin, and both predictions are scored
+   against the configuration that was printed.
 """
 
 from __future__ import annotations
