@@ -27,7 +27,8 @@ from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from spare_twin import SpareTwinError
-from spare_twin.kinematics import base_pose, forward_kinematics, joint_limits_rad, joint_origin, keepout_height_m, rot_y
+from spare_twin.kinematics import (base_pose, forward_kinematics, joint_limits_rad, joint_origin, keepout_height_m,
+                                   param_bounds, rot_y)
 from spare_twin.objects import ObjectFolder
 
 #: Distances beyond this count as "not explained" (metres): robust to clutter and fusion noise.
@@ -158,8 +159,7 @@ def fit_articulated(obj: ObjectFolder, points_world: np.ndarray, config: FitConf
             hypotheses.append((_two_sided_cost(spec, link_points, cloud, points, params), params))
     hypotheses.sort(key=lambda h: h[0])
 
-    lower = np.concatenate([[-np.inf, -np.inf, -np.inf], limits[:, 0]])
-    upper = np.concatenate([[np.inf, np.inf, np.inf], limits[:, 1]])
+    lower, upper = param_bounds(limits)
     starts = [start for _, start in hypotheses[: config.refine_hypotheses]]
     starts += [mirrored(start) for start in starts]
     candidates = []
@@ -304,8 +304,7 @@ def _fit_to_points(spec, link_points, points, params, limits) -> np.ndarray:
     one-sided, since a depth frame sees only the surfaces facing it."""
     if len(points) < 50:
         return np.array(params, dtype=np.float64)
-    lower = np.concatenate([[-np.inf] * 3, limits[:, 0]])
-    upper = np.concatenate([[np.inf] * 3, limits[:, 1]])
+    lower, upper = param_bounds(limits)
     res = least_squares(
         lambda p: _truncated(cKDTree(_posed(spec, link_points, p)).query(points)[0]),
         np.clip(params, lower + 1e-9, upper - 1e-9),

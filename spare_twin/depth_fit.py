@@ -24,7 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from spare_twin.capture.frames import backproject, rotation_error_deg
-from spare_twin.kinematics import base_pose
+from spare_twin.kinematics import base_pose, param_bounds
 from spare_twin.objects import ObjectFolder
 
 #: Depth disagreements beyond this count as this much (metres): a hole or a stray reading is one bad pixel.
@@ -124,8 +124,7 @@ class DepthScorer:
         left; then the next size."""
         params = np.array(params, dtype=np.float64)
         n = len(params) - 3
-        lower = np.concatenate([[-np.inf] * 3, limits[:, 0]])
-        upper = np.concatenate([[np.inf] * 3, limits[:, 1]])
+        lower, upper = param_bounds(limits)
         best = self(params)
         for step_deg in steps_deg:
             scale = np.array([step_deg / 1000.0, step_deg / 1000.0] + [np.radians(step_deg)] * (n + 1))

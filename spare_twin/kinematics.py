@@ -40,6 +40,12 @@ def base_pose(x_m: float, y_m: float, yaw_rad: float) -> np.ndarray:
     return T
 
 
+def param_bounds(limits_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lower, upper) of a fit's parameter vector (base x, y, yaw unbounded, then the joint limits)."""
+    limits_rad = np.asarray(limits_rad, dtype=np.float64)
+    return (np.concatenate([[-np.inf] * 3, limits_rad[:, 0]]), np.concatenate([[np.inf] * 3, limits_rad[:, 1]]))
+
+
 def forward_kinematics(spec: ChainSpec, joint_angles_rad, T_world_base: np.ndarray | None = None) -> np.ndarray:
     """(n + 1, 4, 4) poses of links 0..n in the world frame."""
     angles = np.asarray(joint_angles_rad, dtype=np.float64).reshape(-1)
