@@ -1,12 +1,14 @@
 """spare-twin: a physical-digital twin toolkit for articulated objects (after the SPARE paper).
 
-The pipeline: config -> cad -> urdf -> sim -> dataset -> nets -> capture -> compare.
+Stages, low to high (each imports only from the stages below it; see the README's architecture):
+core (`errors`, `io`, `config`, `recording`) -> `object` -> `sim` -> `capture` -> `dataset` ->
+`observe` -> `nets` -> `compare` -> `commands` / `cli`.
 Heavy libraries (torch, open3d, pybullet, rerun) are imported inside the modules that use them,
 so importing this package and `spare-twin --help` stay instant.
 """
 
+from spare_twin.errors import SpareTwinError
+
 __version__ = "0.1.0"
 
-
-class SpareTwinError(Exception):
-    """A user-facing error: the CLI prints its message on one line and exits non-zero."""
+__all__ = ["SpareTwinError", "__version__"]

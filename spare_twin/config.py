@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 MIN_MOVING_LINKS = 1
 MAX_MOVING_LINKS = 6
@@ -148,7 +148,7 @@ class ChainSpec:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict, source: str = "configuration") -> "ChainSpec":
+    def from_dict(cls, d: dict, source: str = "configuration") -> ChainSpec:
         if not isinstance(d, dict):
             raise SpareTwinError(f"{source}: expected a JSON object")
         known = {f.name for f in dataclasses.fields(cls)}
@@ -175,7 +175,7 @@ class ChainSpec:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True) + "\n"
 
     @classmethod
-    def from_json_file(cls, path: str | Path) -> "ChainSpec":
+    def from_json_file(cls, path: str | Path) -> ChainSpec:
         path = Path(path)
         try:
             d = json.loads(path.read_text())
@@ -244,8 +244,14 @@ def validate(spec: ChainSpec) -> None:
     for what, thickness in walls.items():
         if thickness < pr.min_wall_mm - 1e-9:
             _fail("parts", f"{what} is {thickness:.2f} mm, below the {pr.min_wall_mm} mm minimum wall")
-    if p.spacer_ring_diameter_mm > p.link_width_mm or p.spacer_ring_diameter_mm <= p.pin_diameter_mm + 2 * pr.min_wall_mm:
-        _fail("parts.spacer_ring_diameter_mm", "must lie between the pin (plus a minimum wall each side) and the link width")
+    if (
+        p.spacer_ring_diameter_mm > p.link_width_mm
+        or p.spacer_ring_diameter_mm <= p.pin_diameter_mm + 2 * pr.min_wall_mm
+    ):
+        _fail(
+            "parts.spacer_ring_diameter_mm",
+            "must lie between the pin (plus a minimum wall each side) and the link width",
+        )
     if not 0 <= pr.infill <= 1:
         _fail("printer.infill", f"{pr.infill} must be within 0..1")
     lengths_mm = spec.link_lengths_mm
@@ -253,11 +259,20 @@ def validate(spec: ChainSpec) -> None:
     min_between_axes_mm = counterbore_diameter_mm(p) / 2 + p.spacer_ring_diameter_mm / 2 + pr.min_wall_mm
     for i, length_mm in enumerate(lengths_mm[1:-1], start=1):
         if length_mm < min_between_axes_mm:
-            _fail("link_lengths_m", f"link {i} is {length_mm:.1f} mm between axes at this print_scale, below the {min_between_axes_mm:.1f} mm its joints need")
+            _fail(
+                "link_lengths_m",
+                f"link {i} is {length_mm:.1f} mm between axes at this print_scale, below the {min_between_axes_mm:.1f} mm its joints need",
+            )
     if lengths_mm[-1] < p.link_width_mm / 2:
-        _fail("link_lengths_m", f"the last link ({lengths_mm[-1]:.1f} mm) is shorter than half the link width at this print_scale")
+        _fail(
+            "link_lengths_m",
+            f"the last link ({lengths_mm[-1]:.1f} mm) is shorter than half the link width at this print_scale",
+        )
     if lengths_mm[0] < p.foot_thickness_mm + p.socket_height_mm + p.link_width_mm:
-        _fail("link_lengths_m", f"the base ({lengths_mm[0]:.1f} mm) is too short to stand in its foot socket at this print_scale")
+        _fail(
+            "link_lengths_m",
+            f"the base ({lengths_mm[0]:.1f} mm) is too short to stand in its foot socket at this print_scale",
+        )
     # Longest printed part: a link plate lying flat (its length plus the rounded ends).
     longest_mm = max(lengths_mm[0], max(lengths_mm[1:]) + p.link_width_mm / 2) + p.link_width_mm / 2
     if longest_mm > max(pr.bed_x_mm, pr.bed_y_mm) or p.foot_size_mm > min(pr.bed_x_mm, pr.bed_y_mm):
@@ -281,9 +296,7 @@ def counterbore_depth_mm(p: PartDims) -> float:
 
 def sample_lengths(n_links: int, rng: np.random.Generator) -> tuple[float, ...]:
     """L'_0 ~ U[1.3, 2.0], L'_i ~ U[0.3, 1.0]; if the sum reaches 3, scale so it is exactly 3."""
-    lengths = np.concatenate(
-        [rng.uniform(*BASE_LENGTH_RANGE, size=1), rng.uniform(*LINK_LENGTH_RANGE, size=n_links)]
-    )
+    lengths = np.concatenate([rng.uniform(*BASE_LENGTH_RANGE, size=1), rng.uniform(*LINK_LENGTH_RANGE, size=n_links)])
     total = float(lengths.sum())
     if total >= MAX_TOTAL_LENGTH:
         lengths = lengths * (MAX_TOTAL_LENGTH / total)

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 
 def _umask() -> int:

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 from spare_twin.io import atomic_dir, encode_png, read_png, write_bytes_atomic
 
 FORMAT = "spare-twin-recording"
@@ -59,12 +59,14 @@ class Camera:
             "width": int(self.width),
             "height": int(self.height),
             "K": np.asarray(self.K, dtype=np.float64).tolist(),
-            "T_world_camera": None if self.T_world_camera is None else np.asarray(self.T_world_camera, np.float64).tolist(),
+            "T_world_camera": None
+            if self.T_world_camera is None
+            else np.asarray(self.T_world_camera, np.float64).tolist(),
             "poses": self.poses,
         }
 
     @classmethod
-    def from_dict(cls, d: dict, source: str) -> "Camera":
+    def from_dict(cls, d: dict, source: str) -> Camera:
         try:
             K = np.asarray(d["K"], dtype=np.float64)
             T = d.get("T_world_camera")
@@ -93,7 +95,7 @@ class Recording:
     _poses: dict[str, np.ndarray] = field(default_factory=dict, repr=False)
 
     @classmethod
-    def open(cls, root: str | Path) -> "Recording":
+    def open(cls, root: str | Path) -> Recording:
         root = Path(root)
         meta_path = root / "recording.json"
         if not root.is_dir():
@@ -205,6 +207,10 @@ class Recording:
         with np.load(p) as z:
             return {k: z[k] for k in z.files}
 
+    def write_ground_truth(self, arrays: dict[str, np.ndarray]) -> None:
+        """Replace the recording's ground_truth.npz atomically (an importer keeps what is known of the object)."""
+        write_bytes_atomic(self.root / "ground_truth.npz", npz_bytes(arrays))
+
     def _checked(self, cam: str, kind: str, frame: int) -> np.ndarray:
         if not 0 <= frame < self.n_frames:
             raise SpareTwinError(f"{self.root}: frame {frame} out of range 0..{self.n_frames - 1}")
@@ -212,7 +218,9 @@ class Recording:
         path = self.path(cam, kind, frame)
         img = read_png(path)
         if img.shape[:2] != (c.height, c.width):
-            raise SpareTwinError(f"{path}: size {img.shape[1]}x{img.shape[0]} does not match camera {cam} ({c.width}x{c.height})")
+            raise SpareTwinError(
+                f"{path}: size {img.shape[1]}x{img.shape[0]} does not match camera {cam} ({c.width}x{c.height})"
+            )
         return img
 
     def validate(self) -> None:
@@ -265,7 +273,9 @@ class RecordingWriter:
             "frames": int(n_frames),
             "fps": float(fps),
             "depth_scale": self.depth_scale,
-            "timestamps_s": [float(t) for t in (timestamps_s if timestamps_s is not None else np.arange(n_frames) / fps)],
+            "timestamps_s": [
+                float(t) for t in (timestamps_s if timestamps_s is not None else np.arange(n_frames) / fps)
+            ],
             "source": source,
             "object": object_config,
             "rig": rig,
@@ -274,7 +284,7 @@ class RecordingWriter:
         self._ctx = atomic_dir(self.root)
         self.tmp: Path | None = None
 
-    def __enter__(self) -> "RecordingWriter":
+    def __enter__(self) -> RecordingWriter:
         self.tmp = self._ctx.__enter__()
         return self
 
@@ -284,7 +294,9 @@ class RecordingWriter:
         return self._ctx.__exit__(exc_type, exc, tb)
 
     def _write_png(self, cam: str, kind: str, frame: int, img: np.ndarray) -> None:
-        write_bytes_atomic(self.tmp / "cameras" / cam / kind / _frame_name(frame), encode_png(img, self.png_compression))
+        write_bytes_atomic(
+            self.tmp / "cameras" / cam / kind / _frame_name(frame), encode_png(img, self.png_compression)
+        )
 
     def add_frame(
         self,
@@ -314,7 +326,7 @@ class RecordingWriter:
         self._poses[cam][frame] = T_world_camera
 
     def set_ground_truth(self, **arrays: np.ndarray) -> None:
-        buf = _npz_bytes(arrays)
+        buf = npz_bytes(arrays)
         write_bytes_atomic(self.tmp / "ground_truth.npz", buf)
 
     def _finish(self) -> None:
@@ -339,7 +351,7 @@ def depth_to_uint16(depth_m: np.ndarray, depth_scale: float) -> np.ndarray:
     return out
 
 
-def _npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
+def npz_bytes(arrays: dict[str, np.ndarray]) -> bytes:
     """np.savez without zip timestamps, so the same arrays always give the same bytes."""
     import io as _io
     import zipfile

@@ -9,7 +9,7 @@ REPO = Path(__file__).resolve().parents[1]
 def object_dirs(tmp_path_factory):
     """Built object folders for n = 1..6 (one seed each), shared by the geometry and URDF tests."""
     from spare_twin.config import sample_chain
-    from spare_twin.objects import build_object
+    from spare_twin.object.folder import build_object
 
     root = tmp_path_factory.mktemp("objects")
     return {n: build_object(sample_chain(n, seed=100 + n), root / f"n{n}", preview=(n == 3)) for n in range(1, 7)}

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from spare_twin.articulated import base_pose, fit_articulated, twin_surface_points
-from spare_twin.kinematics import forward_kinematics, sample_pose
+from spare_twin.compare.articulated import base_pose, fit_articulated, twin_surface_points
+from spare_twin.object.kinematics import forward_kinematics, sample_pose
 
 
 def _wrap_deg(a):
@@ -31,7 +31,7 @@ def test_recovers_joint_angles_within_5_degrees(object_dirs, n, seed):
 def _depth_views(obj, q, T_world_base, count=6, width=160):
     """Depth images (4:3, `width` pixels wide) of the posed twin on its table from `count` cameras
     round it, posed in the world frame."""
-    from spare_twin.depth_fit import DepthView
+    from spare_twin.compare.depth_fit import DepthView
     from spare_twin.sim.rig import look_at
     from spare_twin.sim.twin import Twin
 
@@ -52,8 +52,8 @@ def _depth_views(obj, q, T_world_base, count=6, width=160):
 def test_depth_views_choose_the_fit_over_its_mirror_image(object_dirs):
     """A cloud whose layers are smeared cannot tell a planar chain from its mirror image (base turned
     half round, angles negated); the depth images it came from can."""
-    from spare_twin.articulated import mirrored
-    from spare_twin.depth_fit import DepthScorer
+    from spare_twin.compare.articulated import mirrored
+    from spare_twin.compare.depth_fit import DepthScorer
 
     obj = object_dirs[3]
     rng = np.random.default_rng(4)
@@ -83,7 +83,7 @@ def test_view_alignment_recovers_camera_poses(object_dirs):
     from scipy.spatial.transform import Rotation
 
     from spare_twin.capture.frames import rotation_error_deg
-    from spare_twin.depth_fit import DepthScorer
+    from spare_twin.compare.depth_fit import DepthScorer
 
     obj = object_dirs[3]
     rng = np.random.default_rng(5)
@@ -117,7 +117,7 @@ def _unit(rng):
 
 
 def test_rejects_an_empty_cloud(object_dirs):
-    from spare_twin import SpareTwinError
+    from spare_twin.errors import SpareTwinError
 
     with pytest.raises(SpareTwinError, match="needs an object cloud"):
         fit_articulated(object_dirs[2], np.zeros((10, 3)))

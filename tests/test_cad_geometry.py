@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from spare_twin.cad.checks import hole_radius_mm, measured_pin_clearance_mm, rod_radius_mm
-from spare_twin.cad.export import to_trimesh
-from spare_twin.cad.parts import COUPON_CLEARANCES_MM, build_parts, clearance_coupon, coupon_hole_x_mm
 from spare_twin.config import PartDims, sample_chain
+from spare_twin.object.checks import hole_radius_mm, measured_pin_clearance_mm, rod_radius_mm
+from spare_twin.object.parts import COUPON_CLEARANCES_MM, build_parts, clearance_coupon, coupon_hole_x_mm
+from spare_twin.object.stl import to_trimesh
 
 
 def load_stl(path) -> trimesh.Trimesh:
@@ -84,7 +84,10 @@ def test_clearance_coupon_holes_step_through_the_range():
     p = PartDims()
     coupon = to_trimesh(clearance_coupon(p))
     assert coupon.is_watertight
-    radii = [hole_radius_mm(coupon, (coupon_hole_x_mm(p, i), 0.0), p.link_thickness_mm / 2) for i in range(len(COUPON_CLEARANCES_MM))]
+    radii = [
+        hole_radius_mm(coupon, (coupon_hole_x_mm(p, i), 0.0), p.link_thickness_mm / 2)
+        for i in range(len(COUPON_CLEARANCES_MM))
+    ]
     assert np.allclose(np.array(radii) - p.pin_diameter_mm / 2, COUPON_CLEARANCES_MM, atol=1e-4)
 
 

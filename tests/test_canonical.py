@@ -1,11 +1,10 @@
-"""Canonical views (`spare_twin.capture.canonical`) and `predict` on recordings that are not the
+"""Canonical views (`spare_twin.observe.canonical`) and `predict` on recordings that are not the
 training rig: a hand-held simulated-sensor recording, a simulation of another rig, real imported frames."""
 
 import math
 
 import numpy as np
 import pytest
-
 from capture_helpers import APC, TUM_K, TUM_PAIR
 from conftest import run_cli
 from sensor_helpers import (  # noqa: F401  (shared fixtures)
@@ -36,7 +35,7 @@ def _iou(a, b):
 def test_table_and_background_match_the_twin():
     import cv2
 
-    from spare_twin.capture.canonical import BACKGROUND_GREY, TABLE_GREY, table_view
+    from spare_twin.observe.canonical import BACKGROUND_GREY, TABLE_GREY, table_view
     from spare_twin.sim.rig import load_rig
     from spare_twin.sim.twin import Twin
 
@@ -55,7 +54,7 @@ def test_table_and_background_match_the_twin():
 
 
 def test_canonical_views_of_the_handheld_recording_match_the_rig_render(registered_rec, printed_object):  # noqa: F811
-    from spare_twin.capture.canonical import object_frame, to_rig_views
+    from spare_twin.observe.canonical import object_frame, to_rig_views
     from spare_twin.recording import Recording
     from spare_twin.sim.rig import load_rig
 
@@ -81,13 +80,16 @@ def test_canonical_views_of_the_handheld_recording_match_the_rig_render(register
 
 
 def test_rig_recordings_take_the_no_op_path_and_other_rigs_the_sim_path(printed_object, tmp_path):  # noqa: F811
-    from spare_twin.capture.canonical import resolve_rig, to_rig_views
     from spare_twin.cli import main
-    from spare_twin.nets.synthetic import RIG_NAME, rig as synthetic_rig
+    from spare_twin.dataset.synthetic import RIG_NAME
+    from spare_twin.dataset.synthetic import rig as synthetic_rig
+    from spare_twin.observe.canonical import resolve_rig, to_rig_views
     from spare_twin.recording import Recording
 
     out = tmp_path / "rec"
-    assert main(["render", str(printed_object.root), "--out", str(out), "--frames", "1", "--resolution", "network"]) == 0
+    assert (
+        main(["render", str(printed_object.root), "--out", str(out), "--frames", "1", "--resolution", "network"]) == 0
+    )
     rec = Recording.open(out)
     own = to_rig_views(rec, "spare8")
     assert own.method == "rig" and own.depth_m.shape == (1, 8, 96, 128)
@@ -133,8 +135,10 @@ def test_predict_on_real_imported_recordings(tiny_models, tmp_path, capsys):  # 
     assert code == 1 and "no object found" in last and str(apc) in last and "Traceback" not in err
     assert not (apc / "fused.ply").exists()  # predict registered a temporary copy, not the recording
 
-    code, out, err = run_cli(["capture", "import", str(TUM_PAIR), "--layout", "tum", "--intrinsics", TUM_K,
-                              "--out", str(tmp_path / "tum")], capsys)
+    code, out, err = run_cli(
+        ["capture", "import", str(TUM_PAIR), "--layout", "tum", "--intrinsics", TUM_K, "--out", str(tmp_path / "tum")],
+        capsys,
+    )
     assert code == 0, err
     code, res, err = predict_json(tmp_path / "tum", tiny_models["geo"], capsys)
     assert code == 0, err
@@ -143,8 +147,8 @@ def test_predict_on_real_imported_recordings(tiny_models, tmp_path, capsys):  # 
 
 @pytest.mark.parametrize("n", [0, 3])
 def test_bad_yaw_hypotheses(n):
-    from spare_twin import SpareTwinError
-    from spare_twin.capture.canonical import _yaws
+    from spare_twin.errors import SpareTwinError
+    from spare_twin.observe.canonical import _yaws
 
     with pytest.raises(SpareTwinError):
         _yaws(n)

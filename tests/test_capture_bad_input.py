@@ -5,7 +5,6 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-
 from capture_helpers import APC, APC_FRAMES, TUM_PAIR
 from conftest import run_cli
 
@@ -21,7 +20,9 @@ def _seven_scenes(tmp_path, frames=APC_FRAMES[:2]):
 
 
 def _import(src, out, capsys, *extra):
-    code, stdout, err = run_cli(["capture", "import", str(src), "--layout", "7scenes", "--out", str(out), *extra], capsys)
+    code, stdout, err = run_cli(
+        ["capture", "import", str(src), "--layout", "7scenes", "--out", str(out), *extra], capsys
+    )
     lines = err.strip().splitlines()
     return code, lines[-1] if lines else "", stdout
 
@@ -30,16 +31,19 @@ def _depth(n):
     return cv2.imread(str(APC / f"frame-{n:06d}.depth.png"), cv2.IMREAD_UNCHANGED)
 
 
-@pytest.mark.parametrize("case, expect", [
-    ("missing_depth", "frame-000019.depth.png: missing"),
-    ("extra_depth", "frame-000031.depth.png: extra depth frame"),
-    ("missing_pose", "frame-000019.pose.txt: missing"),
-    ("size_mismatch", "frame-000019.depth.png: size 320x240 does not match"),
-    ("empty_depth", "frame-000019.depth.png: depth image is empty"),
-    ("corrupt_png", "frame-000019.color.png: not a readable image"),
-    ("eight_bit_depth", "frame-000019.depth.png: depth must be a single-channel 16-bit PNG"),
-    ("bad_pose", "frame-000019.pose.txt: not a finite 4x4 pose"),
-])
+@pytest.mark.parametrize(
+    "case, expect",
+    [
+        ("missing_depth", "frame-000019.depth.png: missing"),
+        ("extra_depth", "frame-000031.depth.png: extra depth frame"),
+        ("missing_pose", "frame-000019.pose.txt: missing"),
+        ("size_mismatch", "frame-000019.depth.png: size 320x240 does not match"),
+        ("empty_depth", "frame-000019.depth.png: depth image is empty"),
+        ("corrupt_png", "frame-000019.color.png: not a readable image"),
+        ("eight_bit_depth", "frame-000019.depth.png: depth must be a single-channel 16-bit PNG"),
+        ("bad_pose", "frame-000019.pose.txt: not a finite 4x4 pose"),
+    ],
+)
 def test_bad_frames(tmp_path, capsys, case, expect):
     src = _seven_scenes(tmp_path)
     f = src / "frame-000019"
@@ -90,10 +94,24 @@ def test_failed_import_leaves_existing_recording_intact(tmp_path, capsys):
 
 
 def test_tum_without_intrinsics_and_bad_flags(tmp_path, capsys):
-    code, _, err = run_cli(["capture", "import", str(TUM_PAIR), "--layout", "tum", "--out", str(tmp_path / "r")], capsys)
+    code, _, err = run_cli(
+        ["capture", "import", str(TUM_PAIR), "--layout", "tum", "--out", str(tmp_path / "r")], capsys
+    )
     assert code == 1 and "pass --intrinsics fx,fy,cx,cy" in err
-    code, _, err = run_cli(["capture", "import", str(TUM_PAIR), "--layout", "tum", "--intrinsics", "520,521",
-                            "--out", str(tmp_path / "r")], capsys)
+    code, _, err = run_cli(
+        [
+            "capture",
+            "import",
+            str(TUM_PAIR),
+            "--layout",
+            "tum",
+            "--intrinsics",
+            "520,521",
+            "--out",
+            str(tmp_path / "r"),
+        ],
+        capsys,
+    )
     assert code == 1 and "--intrinsics '520,521'" in err
     code, _, err = run_cli(["capture", "register", str(tmp_path / "nowhere")], capsys)
     assert code == 1 and "nowhere: not a folder" in err

@@ -4,9 +4,8 @@ import json
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
-
 from conftest import run_cli
+from scipy.spatial.transform import Rotation
 
 K = np.array([[600.0, 0, 320], [0, 600, 240], [0, 0, 1]])
 
@@ -25,7 +24,7 @@ def _err(A, B):
 
 @pytest.mark.parametrize("euler, t", [([15, -20, 5], [-0.12, -0.08, 0.55]), ([-30, 10, 80], [0.05, -0.1, 0.7])])
 def test_board_pose_from_synthetic_view(euler, t):
-    from spare_twin.capture.calibration import BoardSpec, board_pose, render_board_view
+    from spare_twin.capture.board import BoardSpec, board_pose, render_board_view
 
     spec = BoardSpec()
     T = _pose(euler, t)
@@ -37,7 +36,7 @@ def test_board_pose_from_synthetic_view(euler, t):
 
 
 def test_depth_refinement_fixes_distance():
-    from spare_twin.capture.calibration import BoardPose, BoardSpec, refine_with_depth, render_board_view
+    from spare_twin.capture.board import BoardPose, BoardSpec, refine_with_depth, render_board_view
 
     spec = BoardSpec()
     T = _pose([20, 10, 0], [-0.1, -0.07, 0.6])
@@ -80,13 +79,15 @@ def test_calibrate_command_on_a_synthetic_two_camera_rig(tmp_path, capsys):
     """Two fixed cameras see the board lying on the table; calibrate recovers their world poses."""
     import cv2
 
-    from spare_twin.capture.calibration import T_WORLD_BOARD, BoardSpec, render_board_view
+    from spare_twin.capture.board import T_WORLD_BOARD, BoardSpec, render_board_view
     from spare_twin.recording import Camera, Recording, RecordingWriter
 
     spec = BoardSpec()
     T_cb = {"a": _pose([25, 10, 0], [-0.12, -0.06, 0.6]), "b": _pose([-20, -15, 30], [-0.1, -0.05, 0.65])}
     cams = [Camera(n, 640, 480, K, None, "unknown") for n in T_cb]
-    with RecordingWriter(tmp_path / "rig", cams, 1, 10.0, {"kind": "sensor", "sensor_model": "synthetic"}, depth_scale=0.001) as w:
+    with RecordingWriter(
+        tmp_path / "rig", cams, 1, 10.0, {"kind": "sensor", "sensor_model": "synthetic"}, depth_scale=0.001
+    ) as w:
         for n, T in T_cb.items():
             img, depth = render_board_view(spec, K, T, 640, 480)
             w.add_frame(n, 0, cv2.cvtColor(img, cv2.COLOR_GRAY2RGB), depth)
@@ -102,8 +103,8 @@ def test_calibrate_command_on_a_synthetic_two_camera_rig(tmp_path, capsys):
 
 
 def test_board_not_found_is_one_line(tmp_path, capsys):
-    from spare_twin import SpareTwinError
-    from spare_twin.capture.calibration import BoardSpec, board_pose
+    from spare_twin.capture.board import BoardSpec, board_pose
+    from spare_twin.errors import SpareTwinError
 
     with pytest.raises(SpareTwinError, match=r"^blank\.png: ChArUco board not found \(0 corners"):
         board_pose(np.full((480, 640), 128, np.uint8), K, BoardSpec(), source="blank.png")

@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from capture_helpers import APC
 from conftest import run_cli
 
@@ -22,8 +21,9 @@ def registered(tmp_path_factory):
     root = tmp_path_factory.mktemp("apc") / "rec"
     rec = import_folder(APC, "7scenes", root, ImportOptions(progress=False))
     reference = rec._poses["cam0"].copy()
-    out = register_recording(root, RegistrationConfig(loop_gaps_frames=(2, 3)), use_reference=False, find="auto",
-                             progress=False)
+    out = register_recording(
+        root, RegistrationConfig(loop_gaps_frames=(2, 3)), use_reference=False, find="auto", progress=False
+    )
     return root, reference, out
 
 
@@ -63,7 +63,9 @@ def test_register_cli_json_with_reference(registered, tmp_path, capsys):
     root, reference, _ = registered
     copy = tmp_path / "rec"
     shutil.copytree(root, copy)
-    code, out, err = run_cli(["capture", "register", str(copy), "--loop-gaps", "2", "--object", "skip", "--json"], capsys)
+    code, out, err = run_cli(
+        ["capture", "register", str(copy), "--loop-gaps", "2", "--object", "skip", "--json"], capsys
+    )
     assert code == 0, err
     res = json.loads(out)
     poses = np.array(res["poses_camera_to_world"])
@@ -85,8 +87,8 @@ def test_view_writes_a_valid_rrd(registered, tmp_path, capsys):
 
 def test_fuse_recording_boundary(registered, tmp_path):
     """fuse_recording: a one-line error without an object; points + T_world_object with one."""
-    from spare_twin import SpareTwinError
     from spare_twin.capture.pipeline import fuse_recording
+    from spare_twin.errors import SpareTwinError
     from spare_twin.recording import Recording
 
     root, _, out = registered

@@ -46,8 +46,8 @@ def test_object_frame_on_the_table():
 
 
 def test_no_object_is_one_line_error():
-    from spare_twin import SpareTwinError
     from spare_twin.capture.segment import find_object
+    from spare_twin.errors import SpareTwinError
 
     rng = np.random.default_rng(1)
     P = _scene(rng, np.eye(4), with_object=False)

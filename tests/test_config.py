@@ -3,8 +3,8 @@ import json
 import numpy as np
 import pytest
 
-from spare_twin import SpareTwinError
 from spare_twin.config import LABEL_SLOTS, ChainSpec, PartDims, sample_chain
+from spare_twin.errors import SpareTwinError
 
 
 def test_sampled_lengths_follow_the_paper_distribution():

@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from spare_twin import SpareTwinError
 from spare_twin.cli import main
 from spare_twin.dataset.build import generate_dataset
 from spare_twin.dataset.generate import SPLIT_COUNTS, GenConfig, n_links_of, split_of
+from spare_twin.errors import SpareTwinError
 
 pytest.importorskip("h5py")
 CFG = GenConfig(frames=3)
@@ -32,7 +32,11 @@ def test_splits_and_balance_follow_the_paper():
         assert all(counts[(split, n)] == per_n for n in range(1, 7))
     assert sum(SPLIT_COUNTS) * 6 * 2 == 324
     # 192 / 36 / 96 sequences x 800 images = 153,600 / 28,800 / 76,800
-    assert [sum(v for (s, _), v in counts.items() if s == name) * 800 for name in ("train", "val", "test")] == [153600, 28800, 76800]
+    assert [sum(v for (s, _), v in counts.items() if s == name) * 800 for name in ("train", "val", "test")] == [
+        153600,
+        28800,
+        76800,
+    ]
     assert {split_of(i) for i in range(6 * 6)} == {"train", "val", "test"}  # small datasets have every split
 
 
@@ -67,8 +71,22 @@ def test_resume_after_kill_9(tmp_path):
     ref = tmp_path / "ref"
     generate_dataset(ref, 6, seed=1, workers=1, cfg=GenConfig(frames=6), progress=False)
     out = tmp_path / "killed"
-    cmd = [sys.executable, "-m", "spare_twin.cli", "dataset", "--out", str(out), "--instances", "6",
-           "--seed", "1", "--frames", "6", "--workers", "1"]
+    cmd = [
+        sys.executable,
+        "-m",
+        "spare_twin.cli",
+        "dataset",
+        "--out",
+        str(out),
+        "--instances",
+        "6",
+        "--seed",
+        "1",
+        "--frames",
+        "6",
+        "--workers",
+        "1",
+    ]
     proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     deadline = time.time() + 60
     while time.time() < deadline and len(list((out / "sequences").glob("seq-*.h5"))) < 2:

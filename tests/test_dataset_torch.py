@@ -68,7 +68,9 @@ def test_depth_noise_option(data):
 
 
 def test_on_the_fly():
-    ds = OnTheFlyDataset(mode="tmp", modality="grey", cfg=GenConfig(frames=T), seed=5, sequences=2, samples_per_sequence=2)
+    ds = OnTheFlyDataset(
+        mode="tmp", modality="grey", cfg=GenConfig(frames=T), seed=5, sequences=2, samples_per_sequence=2
+    )
     items = list(ds)
     assert len(items) == 4
     _check(items[0], T, 1)

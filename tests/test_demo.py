@@ -5,8 +5,6 @@ import subprocess
 import sys
 from pathlib import Path
 
-from conftest import REPO
-
 
 def test_demo_runs_end_to_end(tmp_path):
     exe = shutil.which("spare-twin") or str(Path(sys.executable).parent / "spare-twin")
@@ -25,7 +23,13 @@ def test_demo_runs_end_to_end(tmp_path):
     rrd = out / "compare.rrd"
     assert subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True).returncode == 0
     printed = subprocess.run([rerun, "rrd", "print", str(rrd)], capture_output=True, text=True).stdout
-    for entity in ("/real/network_input", "/sim/network_input", "/world/real_cloud", "/world/twin/link3", "/real/frame/depth"):
+    for entity in (
+        "/real/network_input",
+        "/sim/network_input",
+        "/world/real_cloud",
+        "/world/twin/link3",
+        "/real/frame/depth",
+    ):
         assert entity in printed, entity
     # The shipped model counts the twin's links right from the training rig's views.
     rig_row = next(line for line in lines if "sim, training rig" in line)

@@ -12,8 +12,12 @@ def _batch(net, B=2):
     V = net.frames
     Kv = 1 if net.mode == "tmp" else V
     K = torch.tensor([[125.0, 0, 63.5], [0, 125.0, 47.5], [0, 0, 1]]).expand(B, Kv, 3, 3)
-    return {"x": torch.rand(B, V, 96, 128), "K": K, "T_world_camera": torch.eye(4).expand(B, Kv, 4, 4),
-            "print_scale": torch.full((B,), 0.08)}
+    return {
+        "x": torch.rand(B, V, 96, 128),
+        "K": K,
+        "T_world_camera": torch.eye(4).expand(B, Kv, 4, 4),
+        "print_scale": torch.full((B,), 0.08),
+    }
 
 
 @pytest.mark.parametrize("name", [n for n in PRESETS if "tmp" not in n])
@@ -41,7 +45,9 @@ def test_every_paper_row_has_a_preset():
 
 
 def test_e2e_count_from_slots():
-    L = torch.tensor([[1.5, 0.4, 0.3, 0.01, 0.0, 0.0, 0.0], [1.5, 0.4, 0.3, 0.3, 0.3, 0.3, 0.3], [1.5, 0.0, 0.2, 0, 0, 0, 0]])
+    L = torch.tensor(
+        [[1.5, 0.4, 0.3, 0.01, 0.0, 0.0, 0.0], [1.5, 0.4, 0.3, 0.3, 0.3, 0.3, 0.3], [1.5, 0.0, 0.2, 0, 0, 0, 0]]
+    )
     assert slots_to_count(L, 0.05).tolist() == [2, 6, 1]
 
 
@@ -63,7 +69,7 @@ def test_voxel_grid_puts_a_known_point_in_the_right_cell():
 
 
 def test_config_overrides_are_checked():
-    from spare_twin import SpareTwinError
+    from spare_twin.errors import SpareTwinError
 
     p = resolve("geo-depth-mv-count", {"net": {"channels": [8, 16]}, "train": {"epochs": 2}})
     assert p.net.channels == (8, 16) and p.train.epochs == 2

@@ -4,14 +4,13 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import run_cli
 from test_nets_train import synthetic_data, trained  # noqa: F401  (shared fixtures: one training run)
 
 
 def _write_recording(root, n_links=3, rig_name=None, scale_up=1):
     from spare_twin.config import sample_chain
-    from spare_twin.nets.synthetic import RIG_NAME, chain_segments, render, rig
+    from spare_twin.dataset.synthetic import RIG_NAME, chain_segments, render, rig
     from spare_twin.recording import Camera, RecordingWriter
 
     spec = sample_chain(n_links, seed=11)
@@ -23,8 +22,15 @@ def _write_recording(root, n_links=3, rig_name=None, scale_up=1):
     cams = [Camera(f"cam{i}", W, H, K_rec, poses[i]) for i in range(len(poses))]
     q = np.array([0.3, -0.5, 0.4][:n_links])
     segs = chain_segments(np.array(spec.link_lengths_m), q, spec.print_scale)
-    with RecordingWriter(root, cams, n_frames=2, fps=10.0, source={"kind": "sim", "sensor_model": "synthetic"},
-                         object_config=spec.to_dict(), rig=rig_name or RIG_NAME) as w:
+    with RecordingWriter(
+        root,
+        cams,
+        n_frames=2,
+        fps=10.0,
+        source={"kind": "sim", "sensor_model": "synthetic"},
+        object_config=spec.to_dict(),
+        rig=rig_name or RIG_NAME,
+    ) as w:
         for i, cam in enumerate(cams):
             depth, grey = render(segs, [0.5] * (n_links + 1), K_rec, poses[i], H, W)
             rgb = np.repeat((grey * 255).astype(np.uint8)[..., None], 3, axis=2)
@@ -69,12 +75,14 @@ def test_predict_other_rig_without_canonical_views_is_a_clear_error(trained, tmp
     code, out, err = run_cli(["predict", str(rec), "--model", str(trained / "model.pt"), "--json"], capsys)
     assert code == 0, err  # the voxel net fuses posed views of any rig
     assert ck["net"]["arch"] == "geo_voxel"
-    code, out, err = run_cli(["predict", str(tmp_path / "missing"), "--model", str(trained / "model.pt"), "--json"], capsys)
+    code, out, err = run_cli(
+        ["predict", str(tmp_path / "missing"), "--model", str(trained / "model.pt"), "--json"], capsys
+    )
     assert code == 1 and "missing" in err and out == ""
 
 
 def test_default_model_registry(tmp_path):
-    from spare_twin import SpareTwinError
+    from spare_twin.errors import SpareTwinError
     from spare_twin.nets import checkpoint as ckpt
 
     with pytest.raises(SpareTwinError):

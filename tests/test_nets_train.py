@@ -6,15 +6,21 @@ import json
 import numpy as np
 import pytest
 import torch
-
 from conftest import run_cli
 
 # A small geometry-aware multitask net: learns the count of synthetic chains in a few epochs on a CPU.
 TINY = {
     "preset": "geo-depth-mv-multitask",
     "net": {"channels": [8, 16, 32], "fc_hidden": 64, "dropout": 0.0, "predict_angles": False},
-    "train": {"epochs": 5, "batch_size": 16, "lr": 3e-3, "samples_per_epoch": None, "val_samples": None,
-              "length_weight": 1.0, "threads": 1},
+    "train": {
+        "epochs": 5,
+        "batch_size": 16,
+        "lr": 3e-3,
+        "samples_per_epoch": None,
+        "val_samples": None,
+        "length_weight": 1.0,
+        "threads": 1,
+    },
 }
 
 
@@ -24,7 +30,7 @@ _CACHE: dict = {}
 
 @pytest.fixture(scope="session")
 def synthetic_data(tmp_path_factory):
-    from spare_twin.nets.synthetic import SyntheticSpec, write_synthetic
+    from spare_twin.dataset.synthetic import SyntheticSpec, write_synthetic
 
     if "data" not in _CACHE:
         spec = SyntheticSpec(sizes=(("train", 192), ("val", 64), ("test", 64)), seed=5)
@@ -45,7 +51,9 @@ def _train_tiny(synthetic_data, root):
 
     cfg = root / "cfg.json"
     cfg.write_text(json.dumps(TINY))
-    code = main(["train", "--config", str(cfg), "--data", str(synthetic_data), "--out", str(root / "run"), "--seed", "3"])
+    code = main(
+        ["train", "--config", str(cfg), "--data", str(synthetic_data), "--out", str(root / "run"), "--seed", "3"]
+    )
     assert code == 0
     return root / "run"
 
@@ -81,8 +89,19 @@ def test_checkpoint_round_trip_gives_identical_outputs(trained, synthetic_data, 
 
 
 def test_evaluate_json(trained, synthetic_data, tmp_path, capsys):
-    code, out, err = run_cli(["evaluate", "--model", str(trained / "model.pt"), "--data", str(synthetic_data),
-                              "--out", str(tmp_path), "--json"], capsys)
+    code, out, err = run_cli(
+        [
+            "evaluate",
+            "--model",
+            str(trained / "model.pt"),
+            "--data",
+            str(synthetic_data),
+            "--out",
+            str(tmp_path),
+            "--json",
+        ],
+        capsys,
+    )
     assert code == 0, err
     res = json.loads(out)  # exactly one JSON object on stdout
     assert res["split"] == "test" and res["instances"] == 64
@@ -94,9 +113,13 @@ def test_evaluate_json(trained, synthetic_data, tmp_path, capsys):
 
 
 def test_bad_inputs_are_one_line_errors(synthetic_data, tmp_path, capsys):
-    code, out, err = run_cli(["evaluate", "--model", str(tmp_path / "nope.pt"), "--data", str(synthetic_data), "--json"], capsys)
+    code, out, err = run_cli(
+        ["evaluate", "--model", str(tmp_path / "nope.pt"), "--data", str(synthetic_data), "--json"], capsys
+    )
     assert code == 1 and "nope.pt" in err and out == ""
-    code, out, err = run_cli(["train", "--preset", "bogus", "--data", str(synthetic_data), "--out", str(tmp_path / "r")], capsys)
+    code, out, err = run_cli(
+        ["train", "--preset", "bogus", "--data", str(synthetic_data), "--out", str(tmp_path / "r")], capsys
+    )
     assert code == 1 and "bogus" in err
 
 
@@ -105,8 +128,10 @@ def test_resume_continues_exactly(synthetic_data, tmp_path):
     from spare_twin.nets.presets import resolve
     from spare_twin.nets.train import train
 
-    cfg = {"net": {"channels": [4, 8], "fc_hidden": 16, "dropout": 0.2}, "train": {"epochs": 2, "batch_size": 8,
-           "samples_per_epoch": 24, "val_samples": 8, "threads": 1}}
+    cfg = {
+        "net": {"channels": [4, 8], "fc_hidden": 16, "dropout": 0.2},
+        "train": {"epochs": 2, "batch_size": 8, "samples_per_epoch": 24, "val_samples": 8, "threads": 1},
+    }
     full = resolve("geo-depth-mv-count", cfg)
     train(full, synthetic_data, tmp_path / "a", progress=False)
     first = resolve("geo-depth-mv-count", {**cfg, "train": {**cfg["train"], "epochs": 1}})
@@ -121,7 +146,7 @@ def test_resume_continues_exactly(synthetic_data, tmp_path):
 
 
 def test_fine_tune_starts_from_a_checkpoint(trained, synthetic_data, tmp_path):
-    from spare_twin import SpareTwinError
+    from spare_twin.errors import SpareTwinError
     from spare_twin.nets import checkpoint as ckpt
     from spare_twin.nets.presets import resolve
     from spare_twin.nets.train import train
@@ -135,6 +160,9 @@ def test_fine_tune_starts_from_a_checkpoint(trained, synthetic_data, tmp_path):
     assert weights and all(torch.allclose(start["state_dict"][k], tuned["state_dict"][k], atol=1e-6) for k in weights)
     # the learned count survives: a randomly initialised net at this learning rate stays near chance
     assert tuned["meta"]["val_metrics"]["val_count_accuracy"] > 0.5
-    other = {"net": {"channels": [4, 8], "fc_hidden": 16}, "train": {"epochs": 1, "init_from": str(source), "threads": 1}}
+    other = {
+        "net": {"channels": [4, 8], "fc_hidden": 16},
+        "train": {"epochs": 1, "init_from": str(source), "threads": 1},
+    }
     with pytest.raises(SpareTwinError, match="different network configuration"):
         train(resolve("geo-depth-mv-multitask", other), synthetic_data, tmp_path / "bad", progress=False)

@@ -6,7 +6,6 @@ import subprocess
 import sys
 
 import pytest
-
 from conftest import run_cli
 
 
@@ -21,8 +20,18 @@ def test_object_writes_everything_and_rebuilds_bit_for_bit(tmp_path, capsys):
     summary = json.loads(stdout)
     assert summary["n_links"] == 4 and len(summary["link_lengths_m"]) == 5
     names = set(summary["files"])
-    assert {"object.json", "print_report.json", "ASSEMBLY.md", "preview.png", "clearance_coupon.stl", "spare_n4_s11.urdf"} <= names
-    assert {f"link{k}.stl" for k in range(1, 5)} | {f"pin_joint{k}.stl" for k in range(1, 5)} | {"link0_base.stl", "foot.stl"} <= names
+    assert {
+        "object.json",
+        "print_report.json",
+        "ASSEMBLY.md",
+        "preview.png",
+        "clearance_coupon.stl",
+        "spare_n4_s11.urdf",
+    } <= names
+    assert {f"link{k}.stl" for k in range(1, 5)} | {f"pin_joint{k}.stl" for k in range(1, 5)} | {
+        "link0_base.stl",
+        "foot.stl",
+    } <= names
     meta = json.loads((out / "object.json").read_text())
     assert meta["n_links"] == 4 and len(meta["link_lengths_m"]) == 5 and meta["print_scale"] == 0.08
 

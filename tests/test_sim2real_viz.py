@@ -9,16 +9,20 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spare_twin.compare import score
-from spare_twin.sim2real import sim2real_table, table_markdown, write_table
+from spare_twin.compare.sim_vs_real import score
+from spare_twin.compare.table import sim2real_table, table_markdown, write_table
 
 
 def _result(n, sim_n, real_n, angle_err=None):
     truth = {"n_links": n, "link_lengths_m": [1.5] + [0.5] * n}
     sim = {"n_links": sim_n, "link_lengths_m": [1.5] + [0.5] * sim_n}
     real = {"n_links": real_n, "link_lengths_m": [1.4] + [0.5] * real_n}
-    return {"truth": truth, "sim": sim, "real": real,
-            "errors": {"sim": score(truth, sim), "real": score(truth, real), "joint_angles_deg": angle_err}}
+    return {
+        "truth": truth,
+        "sim": sim,
+        "real": real,
+        "errors": {"sim": score(truth, sim), "real": score(truth, real), "joint_angles_deg": angle_err},
+    }
 
 
 def test_score_uses_the_end_to_end_rule():
@@ -54,8 +58,8 @@ def test_table_per_n_and_overall(tmp_path):
 
 
 def test_comparison_rrd_verifies(tmp_path):
+    from spare_twin.compare.rerun_log import ComparisonLog, log_comparison
     from spare_twin.recording import Camera, Recording, RecordingWriter
-    from spare_twin.viz import ComparisonLog, log_comparison
 
     K = np.array([[100.0, 0, 31.5], [0, 100.0, 23.5], [0, 0, 1]])
     recs = []
@@ -66,14 +70,37 @@ def test_comparison_rrd_verifies(tmp_path):
         recs.append(Recording.open(tmp_path / name))
     result = _result(2, 2, 1, [1.0, 2.0])
     result["registration"] = {"joint_angles_rad": [0.1, 0.2]}
-    cube = (np.array([[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.01]], np.float32), np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], np.uint32), (1.0, 0.0, 0.0))
+    cube = (
+        np.array([[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.01]], np.float32),
+        np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], np.uint32),
+        (1.0, 0.0, 0.0),
+    )
     rrd = tmp_path / "cmp.rrd"
-    log_comparison(rrd, ComparisonLog(result, np.random.default_rng(0).random((50, 3)), np.full((50, 3), 0.5), [cube],
-                                      np.ones((8, 96, 128)), np.ones((8, 96, 128)), recs[0], recs[1]))
+    log_comparison(
+        rrd,
+        ComparisonLog(
+            result,
+            np.random.default_rng(0).random((50, 3)),
+            np.full((50, 3), 0.5),
+            [cube],
+            np.ones((8, 96, 128)),
+            np.ones((8, 96, 128)),
+            recs[0],
+            recs[1],
+        ),
+    )
     rerun = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
     res = subprocess.run([rerun, "rrd", "verify", str(rrd)], capture_output=True, text=True)
     assert res.returncode == 0, res.stderr
     # The sim and real entities are there.
     res = subprocess.run([rerun, "rrd", "print", str(rrd)], capture_output=True, text=True)
-    for entity in ("/real/network_input", "/sim/network_input", "/world/real_cloud", "/world/twin/link0", "/summary", "/real/frame/depth", "/sim/frame/color"):
+    for entity in (
+        "/real/network_input",
+        "/sim/network_input",
+        "/world/real_cloud",
+        "/world/twin/link0",
+        "/summary",
+        "/real/frame/depth",
+        "/sim/frame/color",
+    ):
         assert entity in res.stdout, entity

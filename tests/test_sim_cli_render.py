@@ -8,7 +8,7 @@ import pytest
 from spare_twin.cli import main
 from spare_twin.recording import Recording
 
-objects = pytest.importorskip("spare_twin.objects")
+objects = pytest.importorskip("spare_twin.object.folder")
 
 
 def test_render_writes_a_complete_recording(tmp_path, capsys):

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from spare_twin import SpareTwinError
 from spare_twin.config import sample_chain
+from spare_twin.errors import SpareTwinError
 from spare_twin.sim.motion import MotionConfig, lowest_point_m, random_motion
 
 
@@ -23,7 +23,7 @@ def test_motion_respects_limits_and_keepout(n):
         assert np.abs(np.diff(a, axis=0)).max() < 0.5  # smooth: < 30 deg per frame at 10 fps
         assert np.array_equal(a, random_motion(limits, lengths, keepout, half_w, np.random.default_rng(seed)))
         try:  # the CAD stage's own clearance check, when it is present
-            from spare_twin.kinematics import is_clear_of_foot
+            from spare_twin.object.kinematics import is_clear_of_foot
         except ImportError:
             continue
         assert all(is_clear_of_foot(spec, pose) for pose in a[::7])

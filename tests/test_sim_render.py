@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spare_twin.config import ChainSpec
-from spare_twin.objects import build_sim_twin
+from spare_twin.object.folder import build_sim_twin
 from spare_twin.sim.rig import Rig, load_rig, look_at
 from spare_twin.sim.twin import Twin, linearize_depth
 
@@ -61,7 +61,7 @@ def test_segmentation_and_link_poses(tmp_path):
         assert np.allclose(poses[1][:3, 3], [0, spec.layer_pitch_mm / 1000, 1.6 * 0.08], atol=1e-6)
         assert np.isclose(np.arctan2(poses[1][0, 2], poses[1][2, 2]), 0.5, atol=1e-6)
         try:
-            from spare_twin.kinematics import forward_kinematics
+            from spare_twin.object.kinematics import forward_kinematics
         except ImportError:
             forward_kinematics = None
         if forward_kinematics is not None:

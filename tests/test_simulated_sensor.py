@@ -5,7 +5,6 @@ object) runs on it."""
 import json
 
 import numpy as np
-
 from conftest import run_cli
 from sensor_helpers import FRAMES, handheld_rec, printed_object, registered_rec  # noqa: F401  (shared fixtures)
 
@@ -47,15 +46,36 @@ def test_render_sensor_options_and_errors(printed_object, tmp_path, capsys):  # 
     from spare_twin.recording import Recording
 
     out = tmp_path / "hidden"
-    code, _, err = run_cli(["render", str(printed_object.root), "--out", str(out), "--path", "handheld", "--frames", "2",
-                            "--resolution", "64x48", "--hide-poses", "--noise", "none"], capsys)
+    code, _, err = run_cli(
+        [
+            "render",
+            str(printed_object.root),
+            "--out",
+            str(out),
+            "--path",
+            "handheld",
+            "--frames",
+            "2",
+            "--resolution",
+            "64x48",
+            "--hide-poses",
+            "--noise",
+            "none",
+        ],
+        capsys,
+    )
     assert code == 0, err
     rec = Recording.open(out)
     assert rec.cameras[0].poses == "unknown" and rec.T_world_camera("cam0", 0) is None
     assert rec.ground_truth()["T_world_camera"].shape == (2, 4, 4) and rec.depth_scale == 1e-4
-    for bad, word in ((["--noise", "nosuchsensor"], "nosuchsensor"), (["--resolution", "huge"], "--resolution"),
-                      (["--hide-poses"], "--hide-poses")):
-        code, out_, err = run_cli(["render", str(printed_object.root), "--out", str(tmp_path / "x"), "--frames", "1", *bad], capsys)
+    for bad, word in (
+        (["--noise", "nosuchsensor"], "nosuchsensor"),
+        (["--resolution", "huge"], "--resolution"),
+        (["--hide-poses"], "--hide-poses"),
+    ):
+        code, out_, err = run_cli(
+            ["render", str(printed_object.root), "--out", str(tmp_path / "x"), "--frames", "1", *bad], capsys
+        )
         lines = err.strip().splitlines()
         assert code == 1 and out_ == "" and word in lines[-1] and "Traceback" not in err
     assert not (tmp_path / "x").exists()

@@ -10,7 +10,9 @@ def test_prusaslicer_slices_every_part(object_dirs, tmp_path):
     obj = object_dirs[6]
     for stl in sorted(obj.root.glob("*.stl")):
         gcode = tmp_path / f"{stl.stem}.gcode"
-        res = subprocess.run([slicer, "--export-gcode", "--output", str(gcode), str(stl)], capture_output=True, text=True, timeout=120)
+        res = subprocess.run(
+            [slicer, "--export-gcode", "--output", str(gcode), str(stl)], capture_output=True, text=True, timeout=120
+        )
         assert res.returncode == 0, f"{stl.name}: {res.stderr[-500:]}"
         text = gcode.read_text()
         used = [line for line in text.splitlines() if line.startswith("; filament used [cm3]")]
@@ -19,8 +21,9 @@ def test_prusaslicer_slices_every_part(object_dirs, tmp_path):
 
 def test_shipped_profile_and_examples_slice(tmp_path):
     from conftest import REPO
+
     from spare_twin.config import ChainSpec
-    from spare_twin.objects import build_object
+    from spare_twin.object.folder import build_object
 
     examples = sorted((REPO / "cad" / "examples").glob("*.json"))
     assert len(examples) >= 3
@@ -28,8 +31,18 @@ def test_shipped_profile_and_examples_slice(tmp_path):
     link = objects[0].root / "link1.stl"
     gcode = tmp_path / "profile.gcode"
     res = subprocess.run(
-        ["prusa-slicer", "--load", str(REPO / "cad" / "prusaslicer_pla.ini"), "--export-gcode", "--output", str(gcode), str(link)],
-        capture_output=True, text=True, timeout=120,
+        [
+            "prusa-slicer",
+            "--load",
+            str(REPO / "cad" / "prusaslicer_pla.ini"),
+            "--export-gcode",
+            "--output",
+            str(gcode),
+            str(link),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
     )
     assert res.returncode == 0, res.stderr[-500:]
     settings = gcode.read_text()

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from spare_twin.kinematics import forward_kinematics, is_clear_of_foot, joint_limits_rad, sample_pose
-from spare_twin.urdf import load_urdf
+from spare_twin.object.kinematics import forward_kinematics, is_clear_of_foot, joint_limits_rad, sample_pose
+from spare_twin.object.urdf import load_urdf
 
 
 def test_check_urdf_accepts_every_object(object_dirs):
@@ -90,15 +90,16 @@ def test_forward_kinematics_puts_each_pin_on_its_parent_hole(object_dirs):
                     axis = T_world[k][:3, 1]
                     d = (c - p)[:3]
                     off_axis = d - (d @ axis) * axis
-                    assert np.linalg.norm(off_axis) < 2e-5, f"n={n} joint {k}: pin {np.linalg.norm(off_axis) * 1e3:.3f} mm off its hole"
+                    assert np.linalg.norm(off_axis) < 2e-5, (
+                        f"n={n} joint {k}: pin {np.linalg.norm(off_axis) * 1e3:.3f} mm off its hole"
+                    )
         finally:
             pb.disconnect(client)
 
 
 def test_joint_limits_keep_link1_off_the_foot(object_dirs):
-    from spare_twin.kinematics import KEEPOUT_MARGIN_M, keepout_height_m, link_segment_m
-
     from spare_twin.config import ChainSpec
+    from spare_twin.object.kinematics import KEEPOUT_MARGIN_M, keepout_height_m, link_segment_m
 
     limited = 0
     # The fixture's chains plus one whose first link nearly reaches the foot (base 1.3, link 1.0).
@@ -131,7 +132,7 @@ def test_sampled_poses_clear_the_foot_and_respect_limits(object_dirs):
 
 
 def test_closed_form_lowest_point_matches_forward_kinematics(object_dirs):
-    from spare_twin.kinematics import link_segment_m, lowest_point_m
+    from spare_twin.object.kinematics import link_segment_m, lowest_point_m
 
     rng = np.random.default_rng(3)
     for obj in object_dirs.values():
@@ -139,9 +140,12 @@ def test_closed_form_lowest_point_matches_forward_kinematics(object_dirs):
         for _ in range(20):
             q = rng.uniform(-np.pi, np.pi, spec.n_links)
             poses = forward_kinematics(spec, q)
-            low = min(
-                min(P[2, 3] + a * P[2, 2], P[2, 3] + b * P[2, 2])
-                for k, P in enumerate(poses[1:], start=1)
-                for a, b in [link_segment_m(spec, k)]
-            ) - spec.parts.link_width_mm / 2000
+            low = (
+                min(
+                    min(P[2, 3] + a * P[2, 2], P[2, 3] + b * P[2, 2])
+                    for k, P in enumerate(poses[1:], start=1)
+                    for a, b in [link_segment_m(spec, k)]
+                )
+                - spec.parts.link_width_mm / 2000
+            )
             assert lowest_point_m(spec, q) == pytest.approx(low, abs=1e-12)

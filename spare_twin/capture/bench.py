@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 #: The default data location: `shared/real_rgbd` beside the repository checkout (as in CI).
 DEFAULT_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "real_rgbd"
@@ -23,8 +23,14 @@ GOAL_ROTATION_DEG = 2.0
 GOAL_TRANSLATION_MM = 20.0
 
 
-def bench_registration(data_dir: str | Path = DEFAULT_DATA, gaps: tuple[int, ...] = (1, 10, 40), cfg=None,
-                       max_frames: int | None = None, work_dir: str | Path | None = None, progress: bool = False) -> dict:
+def bench_registration(
+    data_dir: str | Path = DEFAULT_DATA,
+    gaps: tuple[int, ...] = (1, 10, 40),
+    cfg=None,
+    max_frames: int | None = None,
+    work_dir: str | Path | None = None,
+    progress: bool = False,
+) -> dict:
     """Import + register + fuse the APC frames; returns errors per gap and timings (JSON-ready)."""
     from spare_twin.capture.importers import ImportOptions, import_folder
     from spare_twin.capture.pipeline import register_recording
@@ -48,7 +54,11 @@ def bench_registration(data_dir: str | Path = DEFAULT_DATA, gaps: tuple[int, ...
         "data": str(src),
         "frames": n,
         "reference_poses": "withheld",
-        "config": {"voxel_m": cfg.voxel_m, "loop_gaps_frames": list(cfg.loop_gaps_frames), "global_init": cfg.global_init},
+        "config": {
+            "voxel_m": cfg.voxel_m,
+            "loop_gaps_frames": list(cfg.loop_gaps_frames),
+            "global_init": cfg.global_init,
+        },
         "errors": {},
         "import_s": round(import_s, 3),
         "import_frames_per_s": round(n / import_s, 2),

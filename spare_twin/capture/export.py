@@ -26,8 +26,12 @@ def export_7scenes(rec_dir, out_dir, camera: str | None = None, poses: bool = Tr
         np.savetxt(tmp / "camera-intrinsics.txt", cam.K, fmt="%.9f")
         for f in range(rec.n_frames):
             stem = tmp / f"frame-{f:06d}"
-            write_bytes_atomic(stem.with_suffix(".color.png"), encode_png(cv2.cvtColor(rec.color(cam.name, f), cv2.COLOR_RGB2BGR)))
-            write_bytes_atomic(stem.with_suffix(".depth.png"), encode_png(depth_to_uint16(rec.depth_m(cam.name, f), 0.001)))
+            write_bytes_atomic(
+                stem.with_suffix(".color.png"), encode_png(cv2.cvtColor(rec.color(cam.name, f), cv2.COLOR_RGB2BGR))
+            )
+            write_bytes_atomic(
+                stem.with_suffix(".depth.png"), encode_png(depth_to_uint16(rec.depth_m(cam.name, f), 0.001))
+            )
             T = rec.T_world_camera(cam.name, f) if poses else None
             if T is not None:
                 np.savetxt(stem.with_suffix(".pose.txt"), T, fmt="%.9f")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 #: Plausible median depth of a real RGB-D frame (metres). Outside it the depth scale is almost
 #: certainly wrong (millimetres read as metres gives hundreds of metres; 1/5000 read as 1/1000 gives 5x).
@@ -20,7 +20,9 @@ MIN_VALID_DEPTH_FRACTION = 0.01
 def check_depth(depth_u16: np.ndarray, depth_scale: float, source: str | Path) -> None:
     """One-line error naming `source` for an empty depth image or an implausible depth scale."""
     if depth_u16.ndim != 2 or depth_u16.dtype != np.uint16:
-        raise SpareTwinError(f"{source}: depth must be a single-channel 16-bit image, got {depth_u16.dtype} {depth_u16.shape}")
+        raise SpareTwinError(
+            f"{source}: depth must be a single-channel 16-bit image, got {depth_u16.dtype} {depth_u16.shape}"
+        )
     valid = depth_u16 > 0
     if valid.mean() < MIN_VALID_DEPTH_FRACTION:
         raise SpareTwinError(f"{source}: depth image is empty ({100 * valid.mean():.2f} % valid pixels)")
@@ -112,7 +114,9 @@ def to_o3d_rgbd(frame: RGBDFrame, max_depth_m: float):
 def o3d_intrinsic(K: np.ndarray, width: int, height: int):
     import open3d as o3d
 
-    return o3d.camera.PinholeCameraIntrinsic(int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2]))
+    return o3d.camera.PinholeCameraIntrinsic(
+        int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
+    )
 
 
 def fit_view(img: np.ndarray, K: np.ndarray, height: int, width: int, nearest: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -36,8 +36,9 @@ class Fused:
     frames: int
 
 
-def fuse_frames(frames, poses: np.ndarray, cfg: FusionConfig = FusionConfig(), mesh: bool = False,
-                progress: bool = True) -> Fused:
+def fuse_frames(
+    frames, poses: np.ndarray, cfg: FusionConfig = FusionConfig(), mesh: bool = False, progress: bool = True
+) -> Fused:
     """Integrate every frame at its camera-to-world pose into a voxel-block TSDF grid (open3d tensor API).
 
     (The tensor VoxelBlockGrid rather than the legacy ScalableTSDFVolume: in the open3d 0.20 wheel the
@@ -49,12 +50,20 @@ def fuse_frames(frames, poses: np.ndarray, cfg: FusionConfig = FusionConfig(), m
     t0 = time.perf_counter()
     dev = o3d.core.Device("CPU:0")
     grid = o3d.t.geometry.VoxelBlockGrid(
-        attr_names=("tsdf", "weight", "color"), attr_dtypes=(o3d.core.float32,) * 3, attr_channels=((1), (1), (3)),
-        voxel_size=cfg.voxel_m, block_resolution=8, block_count=cfg.block_count, device=dev)
+        attr_names=("tsdf", "weight", "color"),
+        attr_dtypes=(o3d.core.float32,) * 3,
+        attr_channels=((1), (1), (3)),
+        voxel_size=cfg.voxel_m,
+        block_resolution=8,
+        block_count=cfg.block_count,
+        device=dev,
+    )
     trunc_voxels = cfg.sdf_trunc_m / cfg.voxel_m
     for frame, T in tqdm(list(zip(frames, poses)), desc="fuse", unit="frame", file=sys.stderr, disable=not progress):
         depth = o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(frame.depth_u16[..., None])))
-        color = o3d.t.geometry.Image(o3d.core.Tensor(np.ascontiguousarray(frame.color, np.uint8)))  # (uint16, uint8): open3d's native pair
+        color = o3d.t.geometry.Image(
+            o3d.core.Tensor(np.ascontiguousarray(frame.color, np.uint8))
+        )  # (uint16, uint8): open3d's native pair
         K = o3d.core.Tensor(np.asarray(frame.K, np.float64))
         extrinsic = o3d.core.Tensor(np.linalg.inv(T))  # world-to-camera
         scale = 1.0 / frame.depth_scale  # open3d: depth units per metre
@@ -110,7 +119,7 @@ def read_ply_points(path) -> tuple[np.ndarray, np.ndarray]:
     """Points and colours (0..1) of a PLY cloud."""
     import open3d as o3d
 
-    from spare_twin import SpareTwinError
+    from spare_twin.errors import SpareTwinError
 
     pc = o3d.io.read_point_cloud(str(path))
     if len(pc.points) == 0:

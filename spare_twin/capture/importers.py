@@ -27,8 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
 from spare_twin.capture.frames import K_from, check_depth, read_K_txt, read_pose_txt
+from spare_twin.errors import SpareTwinError
 
 LAYOUTS = ("7scenes", "tum", "open3d", "bag")
 TUM_DEPTH_SCALE = 1.0 / 5000.0
@@ -81,6 +81,7 @@ class Source:
 
 # -- listing ------------------------------------------------------------------------------------
 
+
 def _frame_number(p: Path, pattern: re.Pattern) -> int | None:
     m = pattern.fullmatch(p.name)
     return int(m.group(1)) if m else None
@@ -95,7 +96,9 @@ def list_7scenes(src: Path) -> Source:
         raise SpareTwinError(f"{src}: no frame-NNNNNN.color.png / .depth.png files (not a 7-Scenes layout?)")
     for n in sorted(colors):
         if n not in depths:
-            raise SpareTwinError(f"{src / colors[n].name.replace('.color.png', '.depth.png').replace('.color.jpg', '.depth.png')}: missing (colour frame {colors[n].name} has no depth)")
+            raise SpareTwinError(
+                f"{src / colors[n].name.replace('.color.png', '.depth.png').replace('.color.jpg', '.depth.png')}: missing (colour frame {colors[n].name} has no depth)"
+            )
     for n in sorted(depths):
         if n not in colors:
             raise SpareTwinError(f"{depths[n]}: extra depth frame with no matching colour frame")
@@ -114,8 +117,9 @@ def list_7scenes(src: Path) -> Source:
             K = read_K_txt(src / name)
             break
     # 7-Scenes marks missing depth as 65535; tsdf-fusion data uses 0. Both become 0.
-    return Source(frames, K, MM_DEPTH_SCALE, None, "unknown (7-Scenes / tsdf-fusion layout)", "7scenes",
-                  depth_invalid_value=65535)
+    return Source(
+        frames, K, MM_DEPTH_SCALE, None, "unknown (7-Scenes / tsdf-fusion layout)", "7scenes", depth_invalid_value=65535
+    )
 
 
 def _read_tum_list(path: Path) -> list[tuple[float, list[str]]]:
@@ -185,8 +189,10 @@ def list_tum(src: Path) -> Source:
                 raise SpareTwinError(f"{p}: missing (listed in {rgb_txt.name if p == f.color else depth_txt.name})")
     if any(f.T_world_camera is None for f in frames) and any(f.T_world_camera is not None for f in frames):
         n = sum(f.T_world_camera is None for f in frames)
-        print(f"warning: {src / 'groundtruth.txt'}: {n} frames have no pose within {TUM_MAX_DT_S} s; poses set to unknown",
-              file=sys.stderr)
+        print(
+            f"warning: {src / 'groundtruth.txt'}: {n} frames have no pose within {TUM_MAX_DT_S} s; poses set to unknown",
+            file=sys.stderr,
+        )
         frames = [FrameFiles(f.name, f.color, f.depth, None, f.timestamp_s) for f in frames]
     return Source(frames, None, TUM_DEPTH_SCALE, None, "Microsoft Kinect v1 (TUM RGB-D)", "tum")
 
@@ -251,6 +257,7 @@ LISTERS = {"7scenes": list_7scenes, "tum": list_tum, "open3d": list_open3d}
 
 
 # -- writing ------------------------------------------------------------------------------------
+
 
 def _read_color(path: Path) -> tuple[np.ndarray, bytes | None]:
     """Decoded BGR uint8 image and, when the file is already an 8-bit RGB PNG, its bytes to copy."""
@@ -336,19 +343,29 @@ def write_source(source: Source, out: str | Path, opts: ImportOptions):
     else:
         fps = fps or 30.0
         ts = [i / fps for i in range(len(frames))]
-    src_info = {"kind": "sensor", "sensor_model": source.sensor_model, "layout": source.layout,
-                "path": str(frames[0].color.parent.resolve()), "source_frames": [f.name for f in frames],
-                "depth_invalid_value": source.depth_invalid_value, **source.extra}
-    with RecordingWriter(out, [camera], len(frames), fps, src_info, depth_scale=depth_scale,
-                         timestamps_s=ts) as writer:
-        for i, f in enumerate(tqdm(frames, desc=f"import {source.layout}", unit="frame", disable=not opts.progress,
-                                   file=sys.stderr)):
+    src_info = {
+        "kind": "sensor",
+        "sensor_model": source.sensor_model,
+        "layout": source.layout,
+        "path": str(frames[0].color.parent.resolve()),
+        "source_frames": [f.name for f in frames],
+        "depth_invalid_value": source.depth_invalid_value,
+        **source.extra,
+    }
+    with RecordingWriter(out, [camera], len(frames), fps, src_info, depth_scale=depth_scale, timestamps_s=ts) as writer:
+        for i, f in enumerate(
+            tqdm(frames, desc=f"import {source.layout}", unit="frame", disable=not opts.progress, file=sys.stderr)
+        ):
             bgr, raw_png = _read_color(f.color)
             depth = _read_depth(f.depth, source.depth_invalid_value)
             if bgr.shape[:2] != (h, w):
-                raise SpareTwinError(f"{f.color}: size {bgr.shape[1]}x{bgr.shape[0]} differs from the first frame ({w}x{h})")
+                raise SpareTwinError(
+                    f"{f.color}: size {bgr.shape[1]}x{bgr.shape[0]} differs from the first frame ({w}x{h})"
+                )
             if depth.shape != (h, w):
-                raise SpareTwinError(f"{f.depth}: size {depth.shape[1]}x{depth.shape[0]} does not match its colour frame ({w}x{h})")
+                raise SpareTwinError(
+                    f"{f.depth}: size {depth.shape[1]}x{depth.shape[0]} does not match its colour frame ({w}x{h})"
+                )
             check_depth(depth, depth_scale, f.depth)
             writer.add_encoded("cam0", i, raw_png if raw_png is not None else encode_png(bgr), depth)
             if has_poses:
@@ -371,9 +388,19 @@ def import_bag(path: str | Path, out: str | Path, opts: ImportOptions = ImportOp
 
         md = reader.metadata
         frames = iter(lambda: None if reader.is_eof() else reader.next_frame(), None)
-        return stream_to_recording(frames, md, out, {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense",
-                                                     "layout": "bag", "path": str(path.resolve())},
-                                   opts, expected_frames=int(md.stream_length_usec * 1e-6 * md.fps) or None,
-                                   timestamp=lambda: reader.get_timestamp() * 1e-6)
+        return stream_to_recording(
+            frames,
+            md,
+            out,
+            {
+                "kind": "sensor",
+                "sensor_model": md.device_name or "Intel RealSense",
+                "layout": "bag",
+                "path": str(path.resolve()),
+            },
+            opts,
+            expected_frames=int(md.stream_length_usec * 1e-6 * md.fps) or None,
+            timestamp=lambda: reader.get_timestamp() * 1e-6,
+        )
     finally:
         reader.close()

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 REFERENCE_POSES = "T_world_camera.reference.npy"
 
@@ -41,9 +41,17 @@ def reference_poses(rec, cam: str) -> np.ndarray | None:
     return None
 
 
-def register_recording(root: str | Path, reg_cfg=None, fusion_cfg=None, seg_cfg=None, camera: str | None = None,
-                       use_reference: bool = True, find: str = "auto", mesh: bool = False,
-                       progress: bool = True) -> dict:
+def register_recording(
+    root: str | Path,
+    reg_cfg=None,
+    fusion_cfg=None,
+    seg_cfg=None,
+    camera: str | None = None,
+    use_reference: bool = True,
+    find: str = "auto",
+    mesh: bool = False,
+    progress: bool = True,
+) -> dict:
     """Register, fuse and segment `root` in place; returns the `capture register --json` object.
 
     find: "auto" (look for the object; none found is a warning), "require" (none found is an error),
@@ -74,13 +82,18 @@ def register_recording(root: str | Path, reg_cfg=None, fusion_cfg=None, seg_cfg=
     obj = None
     if find != "skip":
         try:
-            obj = find_object(fused.points, fused.colors, result.poses[:, :3, 3], seg_cfg, source=str(rec.root / "fused.ply"))
+            obj = find_object(
+                fused.points, fused.colors, result.poses[:, :3, 3], seg_cfg, source=str(rec.root / "fused.ply")
+            )
         except SpareTwinError as exc:
             if find == "require":
                 raise
             print(f"warning: {exc}", file=sys.stderr)
 
-    files = {f"cameras/{cam}/T_world_camera.npy": npy_bytes(result.poses), "fused.ply": ply_bytes(fused.points, fused.colors)}
+    files = {
+        f"cameras/{cam}/T_world_camera.npy": npy_bytes(result.poses),
+        "fused.ply": ply_bytes(fused.points, fused.colors),
+    }
     if ref is not None and "registration" not in rec.meta:
         files[f"cameras/{cam}/{REFERENCE_POSES}"] = npy_bytes(ref)
     if fused.mesh is not None:
@@ -89,7 +102,8 @@ def register_recording(root: str | Path, reg_cfg=None, fusion_cfg=None, seg_cfg=
         files["object.ply"] = ply_bytes(obj.points, obj.colors)
     meta = dict(rec.meta)
     meta["cameras"] = [
-        {**c.to_dict(), "poses": "per_frame", "T_world_camera": None} if c.name == cam else c.to_dict() for c in rec.cameras
+        {**c.to_dict(), "poses": "per_frame", "T_world_camera": None} if c.name == cam else c.to_dict()
+        for c in rec.cameras
     ]
     registration = {
         "camera": cam,
@@ -105,8 +119,13 @@ def register_recording(root: str | Path, reg_cfg=None, fusion_cfg=None, seg_cfg=
     # a stale object.ply from an earlier run must not outlive this result
     update_recording(rec.root, meta, files, remove=tuple(f for f in ("object.ply", "fused_mesh.ply") if f not in files))
     names = [f"{i:06d}" for i in range(rec.n_frames)]
-    out = {"frames": names, "poses_camera_to_world": [P.tolist() for P in result.poses], "camera": cam,
-           "recording": str(rec.root), **{k: v for k, v in registration.items() if k not in ("config", "camera")}}
+    out = {
+        "frames": names,
+        "poses_camera_to_world": [P.tolist() for P in result.poses],
+        "camera": cam,
+        "recording": str(rec.root),
+        **{k: v for k, v in registration.items() if k not in ("config", "camera")},
+    }
     src_names = rec.source.get("source_frames")
     if src_names and len(src_names) == rec.n_frames:
         out["source_frames"] = src_names

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 
 @dataclass(frozen=True)
@@ -43,7 +43,7 @@ def _tensor_np(image) -> np.ndarray:
     return np.asarray(t.cpu().numpy() if hasattr(t, "cpu") else t)
 
 
-def stream_to_recording(frames, md, out, source: dict, opts, expected_frames: int | None, timestamp) -> "object":
+def stream_to_recording(frames, md, out, source: dict, opts, expected_frames: int | None, timestamp) -> object:
     """Write open3d t.geometry.RGBDImage frames from `frames` (an iterator) into a recording.
 
     `md` is open3d's RGBDVideoMetadata (intrinsics, depth scale, fps). Stops at the end of the
@@ -63,8 +63,13 @@ def stream_to_recording(frames, md, out, source: dict, opts, expected_frames: in
     stride = max(1, getattr(opts, "stride", 1))
     stopped = False
     with OpenEndedWriter(out, camera, float(md.fps) / stride, source, depth_scale) as writer:
-        bar = tqdm(total=expected_frames, desc=f"{source.get('layout', 'record')}", unit="frame", file=sys.stderr,
-                   disable=not getattr(opts, "progress", True))
+        bar = tqdm(
+            total=expected_frames,
+            desc=f"{source.get('layout', 'record')}",
+            unit="frame",
+            file=sys.stderr,
+            disable=not getattr(opts, "progress", True),
+        )
         try:
             for k, im in enumerate(frames):
                 if k % stride:
@@ -73,8 +78,10 @@ def stream_to_recording(frames, md, out, source: dict, opts, expected_frames: in
                 depth = _tensor_np(im.depth)
                 depth = depth[..., 0] if depth.ndim == 3 else depth
                 if color.shape[:2] != (height, width) or depth.shape != (height, width):
-                    raise SpareTwinError(f"{source.get('path', 'sensor')}: frame {k}: colour {color.shape[:2]} / depth "
-                                         f"{depth.shape} do not match the stream's {height}x{width}")
+                    raise SpareTwinError(
+                        f"{source.get('path', 'sensor')}: frame {k}: colour {color.shape[:2]} / depth "
+                        f"{depth.shape} do not match the stream's {height}x{width}"
+                    )
                 if color.ndim == 2:
                     color = np.repeat(color[..., None], 3, axis=2)
                 if color.dtype != np.uint8:  # some streams deliver 16-bit colour
@@ -113,7 +120,9 @@ def record_realsense(out: str | Path, cfg: RecordConfig = RecordConfig(), progre
     }
     sensor = o3d.t.io.RealSenseSensor()
     if not sensor.init_sensor(o3d.t.io.RealSenseSensorConfig(config), 0, cfg.bag or ""):
-        raise SpareTwinError(f"RealSense: could not configure {cfg.width}x{cfg.height} at {cfg.fps} fps (unsupported mode?)")
+        raise SpareTwinError(
+            f"RealSense: could not configure {cfg.width}x{cfg.height} at {cfg.fps} fps (unsupported mode?)"
+        )
     if not sensor.start_capture(start_record=bool(cfg.bag)):
         raise SpareTwinError("RealSense: could not start capture")
     t_end = None if cfg.duration_s is None else time.monotonic() + cfg.duration_s
@@ -131,8 +140,19 @@ def record_realsense(out: str | Path, cfg: RecordConfig = RecordConfig(), progre
     _Opts.progress = progress
     try:
         md = sensor.get_metadata()
-        return stream_to_recording(frames(), md, out, {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense",
-                                                       "serial": md.serial_number, "layout": "live"},
-                                   _Opts, cfg.max_frames, lambda: sensor.get_timestamp() * 1e-6)
+        return stream_to_recording(
+            frames(),
+            md,
+            out,
+            {
+                "kind": "sensor",
+                "sensor_model": md.device_name or "Intel RealSense",
+                "serial": md.serial_number,
+                "layout": "live",
+            },
+            _Opts,
+            cfg.max_frames,
+            lambda: sensor.get_timestamp() * 1e-6,
+        )
     finally:
         sensor.stop_capture()

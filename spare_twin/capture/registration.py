@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 
 @dataclass(frozen=True)
@@ -100,7 +100,9 @@ def _cloud(frame, cfg: RegistrationConfig):
     from spare_twin.capture.frames import o3d_intrinsic, to_o3d_rgbd
 
     h, w = frame.depth_u16.shape
-    pc = o3d.geometry.PointCloud.create_from_rgbd_image(to_o3d_rgbd(frame, cfg.max_depth_m), o3d_intrinsic(frame.K, w, h))
+    pc = o3d.geometry.PointCloud.create_from_rgbd_image(
+        to_o3d_rgbd(frame, cfg.max_depth_m), o3d_intrinsic(frame.K, w, h)
+    )
     pc = pc.voxel_down_sample(cfg.voxel_m)
     pc.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.voxel_m * 3, max_nn=30))
     pc.orient_normals_towards_camera_location(np.zeros(3))  # the camera sees the front of every surface
@@ -113,7 +115,8 @@ def _features(pc, cfg: RegistrationConfig):
     down = pc.voxel_down_sample(cfg.fpfh_voxel_m)
     down.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.fpfh_voxel_m * 2, max_nn=30))
     fpfh = o3d.pipelines.registration.compute_fpfh_feature(
-        down, o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.fpfh_voxel_m * 5, max_nn=100))
+        down, o3d.geometry.KDTreeSearchParamHybrid(radius=cfg.fpfh_voxel_m * 5, max_nn=100)
+    )
     return down, fpfh
 
 
@@ -135,9 +138,17 @@ class _Registrar:
         (sd, sf), (td, tf) = self.features(s), self.features(t)
         d = self.cfg.fpfh_voxel_m * 1.5
         r = reg.registration_ransac_based_on_feature_matching(
-            sd, td, sf, tf, True, d, reg.TransformationEstimationPointToPoint(False), 3,
+            sd,
+            td,
+            sf,
+            tf,
+            True,
+            d,
+            reg.TransformationEstimationPointToPoint(False),
+            3,
             [reg.CorrespondenceCheckerBasedOnEdgeLength(0.9), reg.CorrespondenceCheckerBasedOnDistance(d)],
-            reg.RANSACConvergenceCriteria(self.cfg.ransac_iterations, self.cfg.ransac_confidence))
+            reg.RANSACConvergenceCriteria(self.cfg.ransac_iterations, self.cfg.ransac_confidence),
+        )
         return r.transformation
 
     def icp(self, s: int, t: int, init: np.ndarray):
@@ -151,7 +162,9 @@ class _Registrar:
             finest = k == len(self.cfg.icp_distances_m) - 1
             try:
                 if finest and self.cfg.colored_icp:
-                    r = reg.registration_colored_icp(src, tgt, d, T, reg.TransformationEstimationForColoredICP(lambda_geometric=0.9), crit)
+                    r = reg.registration_colored_icp(
+                        src, tgt, d, T, reg.TransformationEstimationForColoredICP(lambda_geometric=0.9), crit
+                    )
                 else:
                     r = reg.registration_icp(src, tgt, d, T, reg.TransformationEstimationPointToPlane(), crit)
             except RuntimeError:  # open3d raises when no correspondence is left within d
@@ -166,7 +179,9 @@ class _Registrar:
             res = self.icp(s, t, guess)
             if res is not None:
                 cands.append((res, "guess"))
-        if cfg.global_init == "always" or (cfg.global_init == "auto" and (not cands or cands[0][0][1] < cfg.retry_fitness)):
+        if cfg.global_init == "always" or (
+            cfg.global_init == "auto" and (not cands or cands[0][0][1] < cfg.retry_fitness)
+        ):
             res = self.icp(s, t, self.ransac(s, t))
             if res is not None:
                 cands.append((res, "ransac"))
@@ -179,8 +194,9 @@ class _Registrar:
         return Edge(s, t, T, fit, rmse, how)
 
 
-def register_frames(frames, cfg: RegistrationConfig = RegistrationConfig(), init_poses: np.ndarray | None = None,
-                    progress: bool = True) -> RegistrationResult:
+def register_frames(
+    frames, cfg: RegistrationConfig = RegistrationConfig(), init_poses: np.ndarray | None = None, progress: bool = True
+) -> RegistrationResult:
     """Camera-to-world poses of `frames` (spare_twin.capture.frames.RGBDFrame list).
 
     `init_poses` (N, 4, 4): reference or approximate poses used as initial guesses; the result is then
@@ -223,13 +239,15 @@ def register_frames(frames, cfg: RegistrationConfig = RegistrationConfig(), init
         bar.update(1)
         if e is None:
             if init_poses is None:
-                raise SpareTwinError(f"registration: frames {a} and {a + 1} do not overlap (ICP fitness below "
-                                     f"{cfg.min_fitness}); record more slowly or lower --voxel")
+                raise SpareTwinError(
+                    f"registration: frames {a} and {a + 1} do not overlap (ICP fitness below "
+                    f"{cfg.min_fitness}); record more slowly or lower --voxel"
+                )
             continue
         edges.append(e)
         if init_poses is None:
             chain.append(chain[a] @ e.T_target_source)
-    for s, t in pairs[n - 1:]:
+    for s, t in pairs[n - 1 :]:
         e = R.edge(s, t, np.linalg.inv(chain[t]) @ chain[s])
         bar.update(1)
         if e is not None:
@@ -244,12 +262,17 @@ def register_frames(frames, cfg: RegistrationConfig = RegistrationConfig(), init
     d = cfg.icp_distances_m[-1]
     for e in edges:
         info = reg.get_information_matrix_from_point_clouds(clouds[e.source], clouds[e.target], d, e.T_target_source)
-        graph.edges.append(reg.PoseGraphEdge(e.source, e.target, e.T_target_source, info,
-                                             uncertain=abs(e.source - e.target) != 1))
+        graph.edges.append(
+            reg.PoseGraphEdge(e.source, e.target, e.T_target_source, info, uncertain=abs(e.source - e.target) != 1)
+        )
     reg.global_optimization(
-        graph, reg.GlobalOptimizationLevenbergMarquardt(), reg.GlobalOptimizationConvergenceCriteria(),
-        reg.GlobalOptimizationOption(max_correspondence_distance=d, edge_prune_threshold=cfg.edge_prune_threshold,
-                                     reference_node=0))
+        graph,
+        reg.GlobalOptimizationLevenbergMarquardt(),
+        reg.GlobalOptimizationConvergenceCriteria(),
+        reg.GlobalOptimizationOption(
+            max_correspondence_distance=d, edge_prune_threshold=cfg.edge_prune_threshold, reference_node=0
+        ),
+    )
     poses = np.array([node.pose for node in graph.nodes])
     poses = np.linalg.inv(poses[0]) @ poses  # exactly frame 0 = identity, whatever the optimiser did
     if init_poses is not None:

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 
 @dataclass(frozen=True)
@@ -49,14 +49,23 @@ class ObjectResult:
     footprint_m: tuple[float, float]
 
     def summary(self) -> dict:
-        return {"points": int(len(self.points)), "height_m": round(self.height_m, 4),
-                "footprint_m": [round(v, 4) for v in self.footprint_m],
-                "T_world_object": self.T_world_object.tolist(), "table_plane": self.table_plane.tolist()}
+        return {
+            "points": int(len(self.points)),
+            "height_m": round(self.height_m, 4),
+            "footprint_m": [round(v, 4) for v in self.footprint_m],
+            "T_world_object": self.T_world_object.tolist(),
+            "table_plane": self.table_plane.tolist(),
+        }
 
 
-def find_object(points: np.ndarray, colors: np.ndarray | None, camera_centers: np.ndarray,
-                cfg: SegmentConfig = SegmentConfig(), source: str = "fused cloud",
-                view_target: np.ndarray | None = None) -> ObjectResult:
+def find_object(
+    points: np.ndarray,
+    colors: np.ndarray | None,
+    camera_centers: np.ndarray,
+    cfg: SegmentConfig = SegmentConfig(),
+    source: str = "fused cloud",
+    view_target: np.ndarray | None = None,
+) -> ObjectResult:
     """Segment the object standing on the table; raises a one-line SpareTwinError naming `source`.
 
     `camera_centers` (M, 3): orient the table normal towards them. `view_target`: a point the cameras
@@ -80,7 +89,9 @@ def find_object(points: np.ndarray, colors: np.ndarray | None, camera_centers: n
     target = np.median(points, axis=0) if view_target is None else np.asarray(view_target, np.float64)
     target = target - (target @ n + plane[3]) * n  # onto the table
     lateral = (points - target) - np.outer((points - target) @ n, n)
-    keep = (height > cfg.min_height_m) & (height < cfg.max_height_m) & (np.linalg.norm(lateral, axis=1) < cfg.max_radius_m)
+    keep = (
+        (height > cfg.min_height_m) & (height < cfg.max_height_m) & (np.linalg.norm(lateral, axis=1) < cfg.max_radius_m)
+    )
     if keep.sum() < cfg.min_cluster_points:
         raise SpareTwinError(f"{source}: no object found above the table plane ({int(keep.sum())} points above it)")
     above = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points[keep]))
@@ -114,5 +125,6 @@ def find_object(points: np.ndarray, colors: np.ndarray | None, camera_centers: n
     centre = centre + R @ ((lo + hi) / 2 * np.array([1, 1, 0]))
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, centre
-    return ObjectResult(obj, colors[best], T, plane, float(height[best].max()),
-                        (float(hi[0] - lo[0]), float(hi[1] - lo[1])))
+    return ObjectResult(
+        obj, colors[best], T, plane, float(height[best].max()), (float(hi[0] - lo[0]), float(hi[1] - lo[1]))
+    )

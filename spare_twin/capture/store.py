@@ -70,14 +70,15 @@ class OpenEndedWriter:
     def __init__(self, root, camera, fps: float, source: dict, depth_scale: float, max_frames: int = 10**7):
         from spare_twin.recording import RecordingWriter
 
-        self._w = RecordingWriter(root, [camera], n_frames=1, fps=fps, source=source, depth_scale=depth_scale,
-                                  timestamps_s=[0.0])
+        self._w = RecordingWriter(
+            root, [camera], n_frames=1, fps=fps, source=source, depth_scale=depth_scale, timestamps_s=[0.0]
+        )
         self.camera = camera.name
         self.count = 0
         self.timestamps_s: list[float] = []
         self.max_frames = max_frames
 
-    def __enter__(self) -> "OpenEndedWriter":
+    def __enter__(self) -> OpenEndedWriter:
         self._w.__enter__()
         return self
 
@@ -93,7 +94,7 @@ class OpenEndedWriter:
         self.count += 1
 
     def __exit__(self, exc_type, exc, tb):
-        from spare_twin import SpareTwinError
+        from spare_twin.errors import SpareTwinError
 
         if exc_type is None:
             if self.count == 0:

@@ -58,8 +58,8 @@ def log_recording(root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfi
     import rerun as rr
     from tqdm import tqdm
 
-    from spare_twin import SpareTwinError
     from spare_twin.capture.fusion import read_ply_points
+    from spare_twin.errors import SpareTwinError
     from spare_twin.recording import Recording
 
     rec = Recording.open(root)
@@ -88,13 +88,23 @@ def log_recording(root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfi
                 pick = rng.choice(len(pts), cfg.max_points, replace=False)
                 pts, cols = pts[pick], cols[pick]
             pts = pts @ T_obj_world[:3, :3].T + T_obj_world[:3, 3]
-            stream.log(f"world/{name}", rr.Points3D(pts, colors=(cols * 255).astype(np.uint8), radii=0.0015 if name == "fused" else 0.002),
-                       static=True)
+            stream.log(
+                f"world/{name}",
+                rr.Points3D(pts, colors=(cols * 255).astype(np.uint8), radii=0.0015 if name == "fused" else 0.002),
+                static=True,
+            )
             logged[f"{name}_points"] = int(len(pts))
     for c in rec.cameras:
-        stream.log(f"world/cameras/{c.name}/image",
-                   rr.Pinhole(image_from_camera=c.K, resolution=[c.width, c.height], camera_xyz=rr.ViewCoordinates.RDF,
-                              image_plane_distance=0.05), static=True)
+        stream.log(
+            f"world/cameras/{c.name}/image",
+            rr.Pinhole(
+                image_from_camera=c.K,
+                resolution=[c.width, c.height],
+                camera_xyz=rr.ViewCoordinates.RDF,
+                image_plane_distance=0.05,
+            ),
+            static=True,
+        )
         if c.poses == "fixed" and c.T_world_camera is not None:
             _log_pose(stream, c.name, T_obj_world @ c.T_world_camera, static=True)
     ts = rec.timestamps_s
@@ -106,7 +116,10 @@ def log_recording(root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfi
             if c.poses == "per_frame":
                 _log_pose(stream, c.name, T_obj_world @ rec.T_world_camera(c.name, f))
             base = f"world/cameras/{c.name}/image"
-            stream.log(f"{base}/color", rr.EncodedImage(contents=rec.path(c.name, "color", f).read_bytes(), media_type="image/png"))
+            stream.log(
+                f"{base}/color",
+                rr.EncodedImage(contents=rec.path(c.name, "color", f).read_bytes(), media_type="image/png"),
+            )
             depth = rec._checked(c.name, "depth", f)
             stream.log(f"{base}/depth", rr.DepthImage(depth, meter=1.0 / rec.depth_scale))
         logged["frames"] += 1

@@ -15,20 +15,33 @@ import json
 
 
 def register(sub) -> None:
-    p = sub.add_parser("bench", help="performance benchmarks (bench dataset, ...)",
-                       description="Performance benchmarks; each subcommand measures one stage.")
+    p = sub.add_parser(
+        "bench",
+        help="performance benchmarks (bench dataset, ...)",
+        description="Performance benchmarks; each subcommand measures one stage.",
+    )
     bsub = p.add_subparsers(dest="benchmark", metavar="BENCHMARK")
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
-    d = bsub.add_parser("dataset", help="dataset generation: end-to-end images/s vs the raw pybullet render loop",
-                        description=__doc__.split("\n\n", 1)[1])
-    d.add_argument("--instances", type=int, default=4,
-                   help="sequences per worker, each timed raw then end to end (default: 4)")
+    d = bsub.add_parser(
+        "dataset",
+        help="dataset generation: end-to-end images/s vs the raw pybullet render loop",
+        description=__doc__.split("\n\n", 1)[1],
+    )
+    d.add_argument(
+        "--instances", type=int, default=4, help="sequences per worker, each timed raw then end to end (default: 4)"
+    )
     d.add_argument("--workers", default="1,2", help="worker counts to measure, comma-separated (default: 1,2)")
     d.add_argument("--frames", type=int, default=100, help="frames per sequence (default: 100)")
-    d.add_argument("--geometry", choices=("sim", "print"), default="sim", help="tessellation of the parts (default: sim)")
-    d.add_argument("--paper", choices=("extrapolate", "full"), default="extrapolate",
-                   help="full: generate the whole paper preset (324 sequences) with the largest worker count and "
-                   "time it; extrapolate (default): predict its wall time from the measured rate")
+    d.add_argument(
+        "--geometry", choices=("sim", "print"), default="sim", help="tessellation of the parts (default: sim)"
+    )
+    d.add_argument(
+        "--paper",
+        choices=("extrapolate", "full"),
+        default="extrapolate",
+        help="full: generate the whole paper preset (324 sequences) with the largest worker count and "
+        "time it; extrapolate (default): predict its wall time from the measured rate",
+    )
     d.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     d.set_defaults(func=bench_dataset)
     _add_stage_benchmarks(bsub)
@@ -77,8 +90,14 @@ def _paired_worker(job: tuple) -> dict:
         scene = sample_scene(rig, spec, cfg.randomization, np.random.default_rng(_seeds(seed, index)["scene"]))
         obj = load_twin_object(cfg, spec, work)
         twin.load(obj)
-        angles = random_motion(obj.joint_limits_rad, obj.link_lengths_phys_m, obj.keepout_height_m,
-                               obj.link_half_width_m, np.random.default_rng(_seeds(seed, index)["motion"]), cfg.motion())
+        angles = random_motion(
+            obj.joint_limits_rad,
+            obj.link_lengths_phys_m,
+            obj.keepout_height_m,
+            obj.link_half_width_m,
+            np.random.default_rng(_seeds(seed, index)["motion"]),
+            cfg.motion(),
+        )
         views = [view_matrix(T) for T in scene.T_world_camera]
         projs = [projection_matrix(k, rig.width, rig.height, rig.near_m, rig.far_m) for k in scene.K]
         t0 = time.perf_counter()
@@ -115,9 +134,9 @@ def bench_dataset(args: argparse.Namespace) -> int:
     import sys
     import tempfile
 
-    from spare_twin import SpareTwinError
     from spare_twin.dataset.build import PRESETS, generate_dataset
     from spare_twin.dataset.generate import GenConfig
+    from spare_twin.errors import SpareTwinError
 
     try:
         worker_counts = [int(w) for w in args.workers.split(",")]
@@ -127,8 +146,14 @@ def bench_dataset(args: argparse.Namespace) -> int:
         raise SpareTwinError("--workers, --instances and --frames must be positive")
     cfg = GenConfig(frames=args.frames, geometry=args.geometry)
     seed = 12345  # benchmark sequences: the same objects in the raw and end-to-end runs
-    out = {"cpu_cores": os.cpu_count(), "geometry": args.geometry, "frames": args.frames,
-           "image_size_hw": [cfg.rig.height, cfg.rig.width], "cameras": cfg.rig.n_cameras, "runs": []}
+    out = {
+        "cpu_cores": os.cpu_count(),
+        "geometry": args.geometry,
+        "frames": args.frames,
+        "image_size_hw": [cfg.rig.height, cfg.rig.width],
+        "cameras": cfg.rig.n_cameras,
+        "runs": [],
+    }
     log = (lambda *a: print(*a, file=sys.stderr)) if args.json else print
     tmp = tempfile.mkdtemp(prefix="spare-twin-bench-")
     try:
@@ -136,28 +161,49 @@ def bench_dataset(args: argparse.Namespace) -> int:
             seq_dir = os.path.join(tmp, f"w{w}")
             os.makedirs(seq_dir)
             raw, e2e = _paired_rates(cfg, seed, w, args.instances, seq_dir)
-            run = {"workers": w, "raw_images_per_s": round(raw, 1), "end_to_end_images_per_s": round(e2e, 1),
-                   "ratio": round(e2e / raw, 3), "raw_per_worker": round(raw / w, 1),
-                   "end_to_end_per_worker": round(e2e / w, 1), "sequences_per_worker": args.instances}
+            run = {
+                "workers": w,
+                "raw_images_per_s": round(raw, 1),
+                "end_to_end_images_per_s": round(e2e, 1),
+                "ratio": round(e2e / raw, 3),
+                "raw_per_worker": round(raw / w, 1),
+                "end_to_end_per_worker": round(e2e / w, 1),
+                "sequences_per_worker": args.instances,
+            }
             out["runs"].append(run)
-            log(f"workers {w}: raw render {raw:7.1f} img/s, end to end {e2e:7.1f} img/s, "
-                f"ratio {e2e / raw:.2f} (per worker {e2e / w:.1f} vs {raw / w:.1f} img/s)")
+            log(
+                f"workers {w}: raw render {raw:7.1f} img/s, end to end {e2e:7.1f} img/s, "
+                f"ratio {e2e / raw:.2f} (per worker {e2e / w:.1f} vs {raw / w:.1f} img/s)"
+            )
             shutil.rmtree(seq_dir, ignore_errors=True)
         paper = PRESETS["paper"]
         paper_images = paper.instances * cfg.rig.n_cameras * paper.frames
         wmax = max(worker_counts)
         best = next(r for r in out["runs"] if r["workers"] == wmax)
         if args.paper == "full":
-            r = generate_dataset(os.path.join(tmp, "paper"), paper.instances, paper.seed, wmax,
-                                 GenConfig(geometry=args.geometry), progress=not args.json)
-            out["paper"] = {"workers": wmax, "images": r["images"], "wall_s": round(r["wall_s"], 1), "measured": True,
-                            "images_per_s": round(r["images"] / r["wall_s"], 1)}
+            r = generate_dataset(
+                os.path.join(tmp, "paper"),
+                paper.instances,
+                paper.seed,
+                wmax,
+                GenConfig(geometry=args.geometry),
+                progress=not args.json,
+            )
+            out["paper"] = {
+                "workers": wmax,
+                "images": r["images"],
+                "wall_s": round(r["wall_s"], 1),
+                "measured": True,
+                "images_per_s": round(r["images"] / r["wall_s"], 1),
+            }
         else:
             est = paper_images / best["end_to_end_images_per_s"]
             out["paper"] = {"workers": wmax, "images": paper_images, "wall_s": round(est, 1), "measured": False}
         p = out["paper"]
-        log(f"paper preset ({p['images']} images, {wmax} workers): "
-            f"{p['wall_s'] / 60:.1f} min {'measured' if p['measured'] else 'extrapolated from the end-to-end rate'}")
+        log(
+            f"paper preset ({p['images']} images, {wmax} workers): "
+            f"{p['wall_s'] / 60:.1f} min {'measured' if p['measured'] else 'extrapolated from the end-to-end rate'}"
+        )
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     if args.json:

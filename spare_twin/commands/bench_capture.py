@@ -13,22 +13,31 @@ import sys
 
 def add_bench(bsub) -> None:
     """Add `capture` to the `spare-twin bench` subparsers."""
-    p = bsub.add_parser("capture", help="capture: registration accuracy/time on real RealSense frames, import and fusion frames/s",
-                        description=__doc__.split("\n\n", 1)[0].split(": ", 1)[1])
-    p.add_argument("--data", default=None, help="folder holding apc_shelf_realsense/ (default: ../shared/real_rgbd beside the repo)")
+    p = bsub.add_parser(
+        "capture",
+        help="capture: registration accuracy/time on real RealSense frames, import and fusion frames/s",
+        description=__doc__.split("\n\n", 1)[0].split(": ", 1)[1],
+    )
+    p.add_argument(
+        "--data",
+        default=None,
+        help="folder holding apc_shelf_realsense/ (default: ../shared/real_rgbd beside the repo)",
+    )
     p.add_argument("--gaps", default="1,10,40", help="frame gaps to report, comma-separated (default 1,10,40)")
     p.add_argument("--max-frames", type=int, default=None, help="use only the first N frames (quick runs)")
-    p.add_argument("--loop-gaps", default="2,4,8,16,24,32,40", help="registration loop-edge gaps (default 2,4,8,16,24,32,40)")
+    p.add_argument(
+        "--loop-gaps", default="2,4,8,16,24,32,40", help="registration loop-edge gaps (default 2,4,8,16,24,32,40)"
+    )
     p.add_argument("--voxel", type=float, default=0.005, help="ICP voxel size, metres (default 0.005)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=bench_capture)
 
 
 def bench_capture(args: argparse.Namespace) -> int:
-    from spare_twin import SpareTwinError
     from spare_twin.capture.bench import DEFAULT_DATA, bench_registration
     from spare_twin.capture.frames import quiet_open3d
     from spare_twin.capture.registration import RegistrationConfig
+    from spare_twin.errors import SpareTwinError
 
     quiet_open3d()
     try:
@@ -36,16 +45,25 @@ def bench_capture(args: argparse.Namespace) -> int:
         loops = tuple(int(v) for v in args.loop_gaps.split(",") if v.strip())
     except ValueError:
         raise SpareTwinError("--gaps / --loop-gaps: expected comma-separated integers") from None
-    r = bench_registration(args.data or DEFAULT_DATA, gaps, RegistrationConfig(voxel_m=args.voxel, loop_gaps_frames=loops),
-                           max_frames=args.max_frames, progress=not args.json or sys.stderr.isatty())
+    r = bench_registration(
+        args.data or DEFAULT_DATA,
+        gaps,
+        RegistrationConfig(voxel_m=args.voxel, loop_gaps_frames=loops),
+        max_frames=args.max_frames,
+        progress=not args.json or sys.stderr.isatty(),
+    )
     if args.json:
         print(json.dumps(r))
         return 0
     print(f"APC shelf, {r['frames']} frames, reference poses withheld")
     for g, row in r["errors"].items():
         rd, tm = row["rotation_deg"], row["translation_mm"]
-        print(f"  gap {g:>3}: rotation mean {rd['mean']:.2f} max {rd['max']:.2f} deg | translation mean {tm['mean']:.1f} "
-              f"max {tm['max']:.1f} mm ({row['pairs']} pairs){'' if row['within_goal'] else '  OVER GOAL'}")
-    print(f"  import {r['import_frames_per_s']:.1f} frames/s, registration {r['registration_s']:.1f} s, "
-          f"fusion {r['fusion_frames_per_s']:.1f} frames/s; goal (2 deg, 20 mm) {'met' if r['goal']['met'] else 'NOT met'}")
+        print(
+            f"  gap {g:>3}: rotation mean {rd['mean']:.2f} max {rd['max']:.2f} deg | translation mean {tm['mean']:.1f} "
+            f"max {tm['max']:.1f} mm ({row['pairs']} pairs){'' if row['within_goal'] else '  OVER GOAL'}"
+        )
+    print(
+        f"  import {r['import_frames_per_s']:.1f} frames/s, registration {r['registration_s']:.1f} s, "
+        f"fusion {r['fusion_frames_per_s']:.1f} frames/s; goal (2 deg, 20 mm) {'met' if r['goal']['met'] else 'NOT met'}"
+    )
     return 0

@@ -12,7 +12,9 @@ def add_bench(sub) -> None:
     p = sub.add_parser("nets", help="network inference speed: samples/s and latency per sample")
     src = p.add_mutually_exclusive_group()
     src.add_argument("--model", metavar="CKPT", help="a checkpoint (default: the shipped predict model)")
-    src.add_argument("--preset", metavar="NAME", help="an untrained network of this preset (speed does not depend on weights)")
+    src.add_argument(
+        "--preset", metavar="NAME", help="an untrained network of this preset (speed does not depend on weights)"
+    )
     p.add_argument("--batch-sizes", default="1,16", help="comma-separated (default 1,16)")
     p.add_argument("--iters", type=int, default=10)
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
@@ -22,7 +24,7 @@ def add_bench(sub) -> None:
 
 
 def run(args) -> int:
-    from spare_twin import SpareTwinError
+    from spare_twin.errors import SpareTwinError
     from spare_twin.nets.bench import bench_inference
 
     try:
@@ -48,6 +50,8 @@ def run(args) -> int:
         print(json.dumps(res))
     else:
         for bs, r in res["batch_sizes"].items():
-            print(f"{name} batch {bs}: {r['samples_per_s']:.1f} samples/s, {r['latency_ms_per_sample']:.1f} ms/sample "
-                  f"({res['threads']} threads, {res['device']})")
+            print(
+                f"{name} batch {bs}: {r['samples_per_s']:.1f} samples/s, {r['latency_ms_per_sample']:.1f} ms/sample "
+                f"({res['threads']} threads, {res['device']})"
+            )
     return 0

@@ -19,10 +19,10 @@ def add_bench(sub) -> None:
 
 
 def bench_object(repeats: int = 5) -> dict:
-    from spare_twin.cad.export import to_trimesh
-    from spare_twin.cad.parts import build_parts
     from spare_twin.config import sample_chain
-    from spare_twin.objects import build_object
+    from spare_twin.object.folder import build_object
+    from spare_twin.object.parts import build_parts
+    from spare_twin.object.stl import to_trimesh
 
     geometry, folder, cli = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
@@ -37,8 +37,20 @@ def bench_object(repeats: int = 5) -> dict:
             folder.append(time.perf_counter() - t0)
             t0 = time.perf_counter()
             subprocess.run(
-                [sys.executable, "-m", "spare_twin.cli", "object", "--links", "6", "--seed", str(seed), "--out", str(Path(tmp) / f"cli{seed}")],
-                check=True, capture_output=True,
+                [
+                    sys.executable,
+                    "-m",
+                    "spare_twin.cli",
+                    "object",
+                    "--links",
+                    "6",
+                    "--seed",
+                    str(seed),
+                    "--out",
+                    str(Path(tmp) / f"cli{seed}"),
+                ],
+                check=True,
+                capture_output=True,
             )
             cli.append(time.perf_counter() - t0)
         # Baseline in the same run: a bare interpreter that only imports the package's CLI.
@@ -64,6 +76,8 @@ def run(args) -> int:
         print(f"6-link object, median of {res['objects']}:")
         print(f"  geometry only (manifold3d parts -> meshes): {res['geometry_s']:.3f} s")
         print(f"  object folder (STLs, checks, URDF, preview): {res['object_folder_s']:.3f} s")
-        print(f"  whole CLI (new process):                     {res['whole_cli_s']:.3f} s "
-              f"= {res['cli_over_geometry']:.1f} x geometry (python start-up alone: {res['python_startup_s']:.3f} s)")
+        print(
+            f"  whole CLI (new process):                     {res['whole_cli_s']:.3f} s "
+            f"= {res['cli_over_geometry']:.1f} x geometry (python start-up alone: {res['python_startup_s']:.3f} s)"
+        )
     return 0

@@ -17,8 +17,11 @@ def _out(args, obj: dict, lines: list[str]) -> None:
 
 
 def register(sub) -> None:
-    p = sub.add_parser("capture", help="real RGB-D: record, import, register, calibrate, view",
-                       description="Capture tools: bring real RGB-D sequences into recordings, register and view them.")
+    p = sub.add_parser(
+        "capture",
+        help="real RGB-D: record, import, register, calibrate, view",
+        description="Capture tools: bring real RGB-D sequences into recordings, register and view them.",
+    )
     csub = p.add_subparsers(dest="capture_command", metavar="SUBCOMMAND")
     p.set_defaults(func=lambda args: (p.print_help(sys.stderr), 2)[1])
 
@@ -39,34 +42,62 @@ def register(sub) -> None:
     i.add_argument("--layout", required=True, choices=("7scenes", "tum", "open3d", "bag"))
     i.add_argument("--out", required=True, help="recording folder to write (replaced atomically if it exists)")
     i.add_argument("--intrinsics", default=None, help="fx,fy,cx,cy in pixels (overrides any intrinsics file)")
-    i.add_argument("--depth-scale", type=float, default=None,
-                   help="metres per depth unit (default: 0.001; TUM 0.0002; open3d/bag: from the metadata)")
+    i.add_argument(
+        "--depth-scale",
+        type=float,
+        default=None,
+        help="metres per depth unit (default: 0.001; TUM 0.0002; open3d/bag: from the metadata)",
+    )
     i.add_argument("--fps", type=float, default=None, help="frame rate when the source has no timestamps (default 30)")
     i.add_argument("--stride", type=int, default=1, help="keep every n-th frame")
     i.add_argument("--max-frames", type=int, default=None, help="import at most this many frames")
     i.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     i.set_defaults(func=cmd_import)
 
-    g = csub.add_parser("register", help="estimate camera poses, fuse (TSDF) and find the object",
-                        description="Registers one camera's frames (FPFH+RANSAC, ICP, pose graph), fuses them into "
-                        "fused.ply and segments the object on the table; results are written into the recording atomically.")
+    g = csub.add_parser(
+        "register",
+        help="estimate camera poses, fuse (TSDF) and find the object",
+        description="Registers one camera's frames (FPFH+RANSAC, ICP, pose graph), fuses them into "
+        "fused.ply and segments the object on the table; results are written into the recording atomically.",
+    )
     g.add_argument("rec", help="recording folder")
     g.add_argument("--camera", default=None, help="camera to register (default: the first)")
     ref = g.add_mutually_exclusive_group()
-    ref.add_argument("--use-reference", dest="use_reference", action="store_true", default=True,
-                     help="use the recording's poses as initial guesses when it has them (default)")
-    ref.add_argument("--ignore-reference", dest="use_reference", action="store_false",
-                     help="register from scratch, ignoring any poses in the recording")
+    ref.add_argument(
+        "--use-reference",
+        dest="use_reference",
+        action="store_true",
+        default=True,
+        help="use the recording's poses as initial guesses when it has them (default)",
+    )
+    ref.add_argument(
+        "--ignore-reference",
+        dest="use_reference",
+        action="store_false",
+        help="register from scratch, ignoring any poses in the recording",
+    )
     g.add_argument("--voxel", type=float, default=0.005, help="ICP voxel size in metres (default 0.005)")
     g.add_argument("--max-depth", type=float, default=2.0, help="ignore depth beyond this, metres (default 2.0)")
-    g.add_argument("--loop-gaps", default="2,4,8,16,24,32,40",
-                   help="extra edges between frames this many positions apart (default 2,4,8,16,24,32,40)")
-    g.add_argument("--global-init", choices=("auto", "always", "never"), default="auto",
-                   help="FPFH+RANSAC initialisation: when the guess fails (auto), on every edge, or never")
+    g.add_argument(
+        "--loop-gaps",
+        default="2,4,8,16,24,32,40",
+        help="extra edges between frames this many positions apart (default 2,4,8,16,24,32,40)",
+    )
+    g.add_argument(
+        "--global-init",
+        choices=("auto", "always", "never"),
+        default="auto",
+        help="FPFH+RANSAC initialisation: when the guess fails (auto), on every edge, or never",
+    )
     g.add_argument("--tsdf-voxel", type=float, default=0.004, help="TSDF voxel size in metres (default 0.004)")
     g.add_argument("--mesh", action="store_true", help="also write fused_mesh.ply")
-    g.add_argument("--object", dest="find", choices=("auto", "require", "skip"), default="auto",
-                   help="find the object on the table: auto (warn if none), require (error if none), skip")
+    g.add_argument(
+        "--object",
+        dest="find",
+        choices=("auto", "require", "skip"),
+        default="auto",
+        help="find the object on the table: auto (warn if none), require (error if none), skip",
+    )
     g.add_argument("--seed", type=int, default=0, help="RANSAC seed")
     g.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     g.set_defaults(func=cmd_register)
@@ -81,9 +112,12 @@ def register(sub) -> None:
     b.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     b.set_defaults(func=cmd_board)
 
-    c = csub.add_parser("calibrate", help="camera poses from the ChArUco board lying on the table (refined with depth)",
-                        description="Detects the board in each camera's colour frames, solves the camera pose (PnP), "
-                        "refines it with depth and stores it as the camera's fixed pose; world = board on the table, z up.")
+    c = csub.add_parser(
+        "calibrate",
+        help="camera poses from the ChArUco board lying on the table (refined with depth)",
+        description="Detects the board in each camera's colour frames, solves the camera pose (PnP), "
+        "refines it with depth and stores it as the camera's fixed pose; world = board on the table, z up.",
+    )
     c.add_argument("rec", help="recording folder")
     c.add_argument("--board", default=None, help="board.json (default: the built-in 7x5 35 mm board)")
     c.add_argument("--frame", type=int, default=None, help="frame to use (default: the one with most corners)")
@@ -110,10 +144,16 @@ def cmd_record(args: argparse.Namespace) -> int:
     from spare_twin.capture.record import RecordConfig, record_realsense
 
     progress = _progress(args)
-    rec = record_realsense(args.out, RecordConfig(args.width, args.height, args.fps, args.frames, args.seconds,
-                                                  args.serial, args.bag), progress=progress)
-    _out(args, {"recording": str(rec.root), "frames": rec.n_frames, "fps": rec.fps},
-         [f"wrote {rec.root} ({rec.n_frames} frames)"])
+    rec = record_realsense(
+        args.out,
+        RecordConfig(args.width, args.height, args.fps, args.frames, args.seconds, args.serial, args.bag),
+        progress=progress,
+    )
+    _out(
+        args,
+        {"recording": str(rec.root), "frames": rec.n_frames, "fps": rec.fps},
+        [f"wrote {rec.root} ({rec.n_frames} frames)"],
+    )
     return 0
 
 
@@ -122,44 +162,80 @@ def cmd_import(args: argparse.Namespace) -> int:
     from spare_twin.capture.importers import ImportOptions, import_folder
 
     progress = _progress(args)
-    opts = ImportOptions(K=parse_intrinsics_arg(args.intrinsics) if args.intrinsics else None,
-                         depth_scale=args.depth_scale, fps=args.fps, max_frames=args.max_frames, stride=args.stride,
-                         progress=progress)
+    opts = ImportOptions(
+        K=parse_intrinsics_arg(args.intrinsics) if args.intrinsics else None,
+        depth_scale=args.depth_scale,
+        fps=args.fps,
+        max_frames=args.max_frames,
+        stride=args.stride,
+        progress=progress,
+    )
     rec = import_folder(args.src, args.layout, args.out, opts)
     cam = rec.cameras[0]
-    _out(args, {"recording": str(rec.root), "frames": rec.n_frames, "width": cam.width, "height": cam.height,
-                "depth_scale": rec.depth_scale, "poses": cam.poses, "fps": rec.fps},
-         [f"wrote {rec.root}: {rec.n_frames} frames {cam.width}x{cam.height}, depth scale {rec.depth_scale:g} m, "
-          f"poses {cam.poses}"])
+    _out(
+        args,
+        {
+            "recording": str(rec.root),
+            "frames": rec.n_frames,
+            "width": cam.width,
+            "height": cam.height,
+            "depth_scale": rec.depth_scale,
+            "poses": cam.poses,
+            "fps": rec.fps,
+        },
+        [
+            f"wrote {rec.root}: {rec.n_frames} frames {cam.width}x{cam.height}, depth scale {rec.depth_scale:g} m, "
+            f"poses {cam.poses}"
+        ],
+    )
     return 0
 
 
 def cmd_register(args: argparse.Namespace) -> int:
-    from spare_twin import SpareTwinError
     from spare_twin.capture.fusion import FusionConfig
     from spare_twin.capture.pipeline import register_recording
     from spare_twin.capture.registration import RegistrationConfig
+    from spare_twin.errors import SpareTwinError
 
     progress = _progress(args)
     try:
         gaps = tuple(int(v) for v in args.loop_gaps.split(",") if v.strip())
     except ValueError:
         raise SpareTwinError(f"--loop-gaps {args.loop_gaps!r}: expected comma-separated integers") from None
-    reg = RegistrationConfig(voxel_m=args.voxel, max_depth_m=args.max_depth, loop_gaps_frames=gaps,
-                             global_init=args.global_init, seed=args.seed)
+    reg = RegistrationConfig(
+        voxel_m=args.voxel,
+        max_depth_m=args.max_depth,
+        loop_gaps_frames=gaps,
+        global_init=args.global_init,
+        seed=args.seed,
+    )
     fus = FusionConfig(voxel_m=args.tsdf_voxel, sdf_trunc_m=4 * args.tsdf_voxel, max_depth_m=args.max_depth)
-    out = register_recording(args.rec, reg, fus, camera=args.camera, use_reference=args.use_reference, find=args.find,
-                             mesh=args.mesh, progress=progress)
+    out = register_recording(
+        args.rec,
+        reg,
+        fus,
+        camera=args.camera,
+        use_reference=args.use_reference,
+        find=args.find,
+        mesh=args.mesh,
+        progress=progress,
+    )
     obj = out.get("object")
-    _out(args, out, [f"registered {len(out['frames'])} frames of {out['recording']} ({out['summary']['edges']} edges)",
-                     f"wrote {out['recording']}/fused.ply ({out['summary']['fused_points']} points)",
-                     f"object: {obj['points']} points, height {obj['height_m']:.3f} m" if obj else "object: none found"])
+    _out(
+        args,
+        out,
+        [
+            f"registered {len(out['frames'])} frames of {out['recording']} ({out['summary']['edges']} edges)",
+            f"wrote {out['recording']}/fused.ply ({out['summary']['fused_points']} points)",
+            f"object: {obj['points']} points, height {obj['height_m']:.3f} m" if obj else "object: none found",
+        ],
+    )
     return 0
 
 
 def cmd_board(args: argparse.Namespace) -> int:
-    from spare_twin import SpareTwinError
-    from spare_twin.capture.calibration import BoardSpec, write_board
+    from spare_twin.capture.board import BoardSpec, write_board
+    from spare_twin.errors import SpareTwinError
 
     try:
         sx, sy = (int(v) for v in args.squares.lower().split("x"))
@@ -167,22 +243,32 @@ def cmd_board(args: argparse.Namespace) -> int:
         raise SpareTwinError(f"--squares {args.squares!r}: expected e.g. 7x5") from None
     spec = BoardSpec(sx, sy, args.square_mm / 1000, args.marker_mm / 1000, args.dictionary, args.dpi)
     paths = write_board(spec, args.out)
-    _out(args, {k: str(v) for k, v in paths.items()} | {"size_m": list(spec.size_m)},
-         [f"wrote {p}" for p in paths.values()] + [f"print at 100 % on A4: the board is "
-                                                   f"{spec.size_m[0] * 1000:.0f} x {spec.size_m[1] * 1000:.0f} mm"])
+    _out(
+        args,
+        {k: str(v) for k, v in paths.items()} | {"size_m": list(spec.size_m)},
+        [f"wrote {p}" for p in paths.values()]
+        + [f"print at 100 % on A4: the board is {spec.size_m[0] * 1000:.0f} x {spec.size_m[1] * 1000:.0f} mm"],
+    )
     return 0
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
-    from spare_twin.capture.calibration import BoardSpec
-    from spare_twin.capture.rig import calibrate_recording
+    from spare_twin.capture.board import BoardSpec
+    from spare_twin.capture.calibrate import calibrate_recording
 
     _progress(args)
     spec = BoardSpec.load(args.board) if args.board else BoardSpec()
     out = calibrate_recording(args.rec, spec, frame=args.frame, use_depth=not args.no_depth)
-    _out(args, out, [f"{c['name']}: frame {c['frame']}, {c['corners']} corners, reprojection {c['reprojection_px']:.2f} px"
-                     + (f", depth shift {c['depth']['shift_mm']:.1f} mm" if c.get("depth") else "")
-                     for c in out["cameras"]] + [f"wrote camera poses into {out['recording']}"])
+    _out(
+        args,
+        out,
+        [
+            f"{c['name']}: frame {c['frame']}, {c['corners']} corners, reprojection {c['reprojection_px']:.2f} px"
+            + (f", depth shift {c['depth']['shift_mm']:.1f} mm" if c.get("depth") else "")
+            for c in out["cameras"]
+        ]
+        + [f"wrote camera poses into {out['recording']}"],
+    )
     return 0
 
 
@@ -191,6 +277,12 @@ def cmd_view(args: argparse.Namespace) -> int:
 
     progress = _progress(args)
     out = log_recording(args.rec, args.rrd, ViewConfig(every=args.every), progress=progress)
-    _out(args, out, [f"wrote {out['rrd']} ({out['frames']} frames, {len(out['cameras'])} cameras, "
-                     f"{out['fused_points']} fused points)"])
+    _out(
+        args,
+        out,
+        [
+            f"wrote {out['rrd']} ({out['frames']} frames, {len(out['cameras'])} cameras, "
+            f"{out['fused_points']} fused points)"
+        ],
+    )
     return 0

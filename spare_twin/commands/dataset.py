@@ -14,27 +14,37 @@ def register(sub) -> None:
         "the dataset, and a larger --instances adds sequences without touching existing ones.",
     )
     p.add_argument("--out", required=True, metavar="DATA_DIR", help="dataset folder (created, resumed or extended)")
-    p.add_argument("--preset", choices=("paper", "small", "tiny"),
-                   help="paper: 324 sequences x 8 cameras x 100 frames = 259,200 images (the paper's scale); "
-                   "small: 36; tiny: 6 x 20 frames. Explicit options override the preset.")
+    p.add_argument(
+        "--preset",
+        choices=("paper", "small", "tiny"),
+        help="paper: 324 sequences x 8 cameras x 100 frames = 259,200 images (the paper's scale); "
+        "small: 36; tiny: 6 x 20 frames. Explicit options override the preset.",
+    )
     p.add_argument("--instances", type=int, help="number of sequences K")
     p.add_argument("--seed", type=int, help="dataset seed (default: 0)")
     p.add_argument("--workers", type=int, default=1, help="parallel rendering processes (default: 1)")
     p.add_argument("--frames", type=int, help="frames per sequence (default: 100)")
     p.add_argument("--rig", default="spare8", help="rig name in capture/rigs/ or a rig JSON file (default: spare8)")
-    p.add_argument("--geometry", choices=("sim", "print"), default="sim",
-                   help="the printed parts with circles of 16 segments (sim, default: twice as fast to render) "
-                        "or of 64 as in the printed STL files (print)")
-    p.add_argument("--sim2real", action="store_true",
-                   help="randomise rig pose / intrinsics, lighting, link and table colours, clutter per sequence")
+    p.add_argument(
+        "--geometry",
+        choices=("sim", "print"),
+        default="sim",
+        help="the printed parts with circles of 16 segments (sim, default: twice as fast to render) "
+        "or of 64 as in the printed STL files (print)",
+    )
+    p.add_argument(
+        "--sim2real",
+        action="store_true",
+        help="randomise rig pose / intrinsics, lighting, link and table colours, clutter per sequence",
+    )
     p.add_argument("--no-segmentation", action="store_true", help="do not store link segmentation images")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from spare_twin import SpareTwinError
     from spare_twin.dataset.build import PRESETS, generate_dataset
     from spare_twin.dataset.generate import GenConfig
+    from spare_twin.errors import SpareTwinError
     from spare_twin.sim.rig import load_rig
     from spare_twin.sim.scene import SIM2REAL, DomainRandomization
 
@@ -47,13 +57,18 @@ def run(args: argparse.Namespace) -> int:
     if frames < 1:
         raise SpareTwinError("--frames must be at least 1")
     cfg = GenConfig(
-        rig=load_rig(args.rig), frames=frames, geometry=args.geometry, segmentation=not args.no_segmentation,
+        rig=load_rig(args.rig),
+        frames=frames,
+        geometry=args.geometry,
+        segmentation=not args.no_segmentation,
         randomization=SIM2REAL if args.sim2real else DomainRandomization(),
     )
     r = generate_dataset(args.out, instances, seed, args.workers, cfg)
     rate = r["generated_images"] / r["generate_s"] if r["generated"] else 0.0
     splits = ", ".join(f"{k} {v['sequences']} seq / {v['images']} img" for k, v in r["splits"].items())
-    print(f"wrote {r['generated']} new sequences ({r['generated_images']} images, {rate:.0f} images/s) to {args.out}; "
-          f"{r['already_present']} were already there")
+    print(
+        f"wrote {r['generated']} new sequences ({r['generated_images']} images, {rate:.0f} images/s) to {args.out}; "
+        f"{r['already_present']} were already there"
+    )
     print(f"{args.out}/manifest.json: {r['instances']} sequences, {r['images']} images ({splits})")
     return 0

@@ -21,9 +21,18 @@ def register(sub) -> None:
     p.add_argument("--batch-size", type=int, default=16)
     p.add_argument("--max-samples", type=int, help="evaluate a seeded random subset of this size")
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"])
-    p.add_argument("--ship", metavar="NAME", help="record the metrics in the checkpoint and copy it to models/NAME.pt with a model card")
-    p.add_argument("--default-for", metavar="TASKS", default="", help="with --ship: comma-separated tasks it becomes the default for "
-                   "(predict, count-mv, count-tmp, lengths-mv, e2e-mv, e2e-tmp)")
+    p.add_argument(
+        "--ship",
+        metavar="NAME",
+        help="record the metrics in the checkpoint and copy it to models/NAME.pt with a model card",
+    )
+    p.add_argument(
+        "--default-for",
+        metavar="TASKS",
+        default="",
+        help="with --ship: comma-separated tasks it becomes the default for "
+        "(predict, count-mv, count-tmp, lengths-mv, e2e-mv, e2e-tmp)",
+    )
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=run)
 
@@ -35,7 +44,9 @@ def run(args) -> int:
     from spare_twin.nets.evaluate import evaluate, record_metrics
 
     model = args.model or ckpt.default_model("predict")
-    res = evaluate(model, args.data, args.split, args.device, args.batch_size, args.out, args.max_samples, progress=True)
+    res = evaluate(
+        model, args.data, args.split, args.device, args.batch_size, args.out, args.max_samples, progress=True
+    )
     res["data"] = str(args.data)
     if args.ship:
         import shutil

@@ -17,12 +17,26 @@ def register(sub) -> None:
         "print_report.json, ASSEMBLY.md, clearance_coupon.stl and preview.png into --out.",
     )
     src = p.add_mutually_exclusive_group(required=True)
-    src.add_argument("--links", type=int, metavar="N", help="moving links (1..6), lengths and colours sampled from the paper's distribution")
-    src.add_argument("--config", metavar="SPEC_JSON", help="a chain configuration (an object.json, or a subset of its keys)")
+    src.add_argument(
+        "--links",
+        type=int,
+        metavar="N",
+        help="moving links (1..6), lengths and colours sampled from the paper's distribution",
+    )
+    src.add_argument(
+        "--config", metavar="SPEC_JSON", help="a chain configuration (an object.json, or a subset of its keys)"
+    )
     p.add_argument("--seed", type=int, default=0, help="sampling seed with --links (default 0)")
     p.add_argument("--out", required=True, metavar="DIR", help="object folder to write (replaced atomically)")
-    p.add_argument("--print-scale", type=float, metavar="M_PER_PAPER_M", help="physical metres per paper metre (default 0.08)")
-    p.add_argument("--clearance", type=float, metavar="MM", help="radial pin clearance in mm (default 0.3; see the clearance coupon)")
+    p.add_argument(
+        "--print-scale", type=float, metavar="M_PER_PAPER_M", help="physical metres per paper metre (default 0.08)"
+    )
+    p.add_argument(
+        "--clearance",
+        type=float,
+        metavar="MM",
+        help="radial pin clearance in mm (default 0.3; see the clearance coupon)",
+    )
     p.add_argument("--bed", metavar="XxY", help="printer bed in mm, e.g. 220x220 (default 200x200)")
     p.add_argument("--name", help="object name (URDF robot name and file stem)")
     p.add_argument("--no-preview", action="store_true", help="skip rendering preview.png")
@@ -31,8 +45,8 @@ def register(sub) -> None:
 
 
 def _spec_from_args(args):
-    from spare_twin import SpareTwinError
     from spare_twin.config import ChainSpec, sample_chain
+    from spare_twin.errors import SpareTwinError
 
     if args.config:
         spec = ChainSpec.from_json_file(args.config)
@@ -57,11 +71,14 @@ def _spec_from_args(args):
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from spare_twin.objects import build_object
+    from spare_twin.object.folder import build_object
 
     spec = _spec_from_args(args)
-    steps = ["modelling parts", "writing STL files", "checking printability", "writing assembly notes"] + ([] if args.no_preview else ["rendering preview"])
+    steps = ["modelling parts", "writing STL files", "checking printability", "writing assembly notes"] + (
+        [] if args.no_preview else ["rendering preview"]
+    )
     with tqdm(total=len(steps), desc="object", unit="step", file=sys.stderr, leave=False, disable=None) as bar:
+
         def progress(what):
             bar.set_postfix_str(what)
             bar.update(1)
@@ -82,8 +99,13 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"wrote {obj.root}/ ({len(files)} files): {spec.n_links} moving links, lengths "
-              + ", ".join(f"{x:.1f}" for x in spec.link_lengths_mm) + " mm")
-        print(f"  URDF {obj.urdf_path.name}; print checks {'passed' if report['passed'] else 'FAILED'}; "
-              "see ASSEMBLY.md" + ("" if args.no_preview else " and preview.png"))
+        print(
+            f"wrote {obj.root}/ ({len(files)} files): {spec.n_links} moving links, lengths "
+            + ", ".join(f"{x:.1f}" for x in spec.link_lengths_mm)
+            + " mm"
+        )
+        print(
+            f"  URDF {obj.urdf_path.name}; print checks {'passed' if report['passed'] else 'FAILED'}; "
+            "see ASSEMBLY.md" + ("" if args.no_preview else " and preview.png")
+        )
     return 0

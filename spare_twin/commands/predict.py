@@ -16,11 +16,18 @@ def register(sub) -> None:
     p.add_argument("--model", metavar="CKPT", help="checkpoint (default: the shipped model in models/)")
     p.add_argument("--frame", type=int, help="time step for multi-view models (default: the middle frame)")
     p.add_argument("--camera", help="camera for temporal models (default: the first)")
-    p.add_argument("--print-scale", type=float, help="physical metres per paper metre (default: the recording's object, else 0.08)")
+    p.add_argument(
+        "--print-scale", type=float, help="physical metres per paper metre (default: the recording's object, else 0.08)"
+    )
     p.add_argument("--n-links", type=int, help="the known link count, for length-only models")
-    p.add_argument("--yaw-hypotheses", type=int, default=4, choices=(1, 2, 4),
-                   help="recordings from other cameras: rotations of the found object frame tried (4: every 90 deg, "
-                   "2: +-x, 1: as found); the most confident output wins (default: 4)")
+    p.add_argument(
+        "--yaw-hypotheses",
+        type=int,
+        default=4,
+        choices=(1, 2, 4),
+        help="recordings from other cameras: rotations of the found object frame tried (4: every 90 deg, "
+        "2: +-x, 1: as found); the most confident output wins (default: 4)",
+    )
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=run)
@@ -29,8 +36,16 @@ def register(sub) -> None:
 def run(args) -> int:
     from spare_twin.nets.predict import predict_recording
 
-    res = predict_recording(args.recording, args.model, args.frame, args.camera, args.print_scale, args.n_links, args.device,
-                            yaw_hypotheses=args.yaw_hypotheses)
+    res = predict_recording(
+        args.recording,
+        args.model,
+        args.frame,
+        args.camera,
+        args.print_scale,
+        args.n_links,
+        args.device,
+        yaw_hypotheses=args.yaw_hypotheses,
+    )
     if args.json:
         print(json.dumps(res))
     else:

@@ -35,13 +35,16 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from spare_twin import SpareTwinError
+    from spare_twin.errors import SpareTwinError
     from spare_twin.io import read_json
 
     if args.list_presets:
         from spare_twin.nets.presets import PRESETS
 
-        rows = {n: {"description": p.description, "paper_row": p.paper_row, "paper_result": p.paper_result} for n, p in PRESETS.items()}
+        rows = {
+            n: {"description": p.description, "paper_row": p.paper_row, "paper_result": p.paper_result}
+            for n, p in PRESETS.items()
+        }
         if args.json:
             print(json.dumps(rows))
         else:
@@ -57,10 +60,19 @@ def run(args) -> int:
     from spare_twin.nets.presets import resolve
 
     config = read_json(args.config) if args.config else {}
-    overrides = {k: v for k, v in {
-        "epochs": args.epochs, "batch_size": args.batch_size, "lr": args.lr, "seed": args.seed,
-        "samples_per_epoch": args.samples_per_epoch, "workers": args.workers, "threads": args.threads,
-    }.items() if v is not None}
+    overrides = {
+        k: v
+        for k, v in {
+            "epochs": args.epochs,
+            "batch_size": args.batch_size,
+            "lr": args.lr,
+            "seed": args.seed,
+            "samples_per_epoch": args.samples_per_epoch,
+            "workers": args.workers,
+            "threads": args.threads,
+        }.items()
+        if v is not None
+    }
     if overrides:
         config = dict(config)
         config["train"] = {**config.get("train", {}), **overrides}
@@ -68,13 +80,23 @@ def run(args) -> int:
     from spare_twin.nets.train import train
 
     command = "spare-twin " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv and "train" in sys.argv else ""
-    summary = train(preset, args.data, args.out, device=args.device, on_the_fly=args.on_the_fly,
-                    resume=args.resume, command=command or _reconstruct(args), progress=True)
+    summary = train(
+        preset,
+        args.data,
+        args.out,
+        device=args.device,
+        on_the_fly=args.on_the_fly,
+        resume=args.resume,
+        command=command or _reconstruct(args),
+        progress=True,
+    )
     if args.json:
         print(json.dumps(summary))
     else:
-        print(f"wrote {summary['model']} (best epoch {summary['best_epoch']}, {summary['train_time_s']:.0f} s), "
-              f"{summary['learning_curve']}")
+        print(
+            f"wrote {summary['model']} (best epoch {summary['best_epoch']}, {summary['train_time_s']:.0f} s), "
+            f"{summary['learning_curve']}"
+        )
     return 0
 
 

@@ -22,9 +22,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from spare_twin import SpareTwinError
 from spare_twin.dataset.generate import SPLITS, GenConfig, _seeds, n_links_of, render_sequence, sequence_spec, split_of
 from spare_twin.dataset.store import sequence_filename, write_sequence
+from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_json_atomic
 
 DATASET_FORMAT = "spare-twin-dataset/1"
@@ -117,10 +117,18 @@ def _check_settings(root: Path, seed: int, cfg: GenConfig) -> None:
     if have.get("format") != DATASET_FORMAT:
         raise SpareTwinError(f"{path}: not a {DATASET_FORMAT} folder")
     if have.get("seed") != want["seed"]:
-        raise SpareTwinError(f"{root} was generated with --seed {have.get('seed')}; use it to resume or extend, or a new --out")
+        raise SpareTwinError(
+            f"{root} was generated with --seed {have.get('seed')}; use it to resume or extend, or a new --out"
+        )
     if have.get("generator") != json.loads(json.dumps(want["generator"])):
-        diff = sorted(k for k in want["generator"] if have.get("generator", {}).get(k) != json.loads(json.dumps(want["generator"][k])))
-        raise SpareTwinError(f"{root} was generated with other settings ({', '.join(diff)}); use the same options or a new --out")
+        diff = sorted(
+            k
+            for k in want["generator"]
+            if have.get("generator", {}).get(k) != json.loads(json.dumps(want["generator"][k]))
+        )
+        raise SpareTwinError(
+            f"{root} was generated with other settings ({', '.join(diff)}); use the same options or a new --out"
+        )
 
 
 def build_manifest(root: Path, instances: int) -> dict:
@@ -137,18 +145,24 @@ def build_manifest(root: Path, instances: int) -> dict:
         if not f.is_file():
             continue
         spec = sequence_spec(seed, i)
-        rows.append({
-            "index": i,
-            "file": f"sequences/{f.name}",
-            "n_links": spec.n_links,
-            "link_lengths_m": list(spec.link_lengths_m),
-            "print_scale": spec.print_scale,
-            "colors": list(spec.colors),
-            "chain_seed": _seeds(seed, i)["chain"],
-            "split": split_of(i),
-        })
+        rows.append(
+            {
+                "index": i,
+                "file": f"sequences/{f.name}",
+                "n_links": spec.n_links,
+                "link_lengths_m": list(spec.link_lengths_m),
+                "print_scale": spec.print_scale,
+                "colors": list(spec.colors),
+                "chain_seed": _seeds(seed, i)["chain"],
+                "split": split_of(i),
+            }
+        )
         counts[split_of(i)] += 1
-    extra = sorted(p.name for p in seq_dir.glob("seq-*.h5") if int(p.stem.split("-")[1]) >= instances) if seq_dir.is_dir() else []
+    extra = (
+        sorted(p.name for p in seq_dir.glob("seq-*.h5") if int(p.stem.split("-")[1]) >= instances)
+        if seq_dir.is_dir()
+        else []
+    )
     return {
         "format": DATASET_FORMAT,
         "seed": seed,
@@ -195,8 +209,15 @@ def generate_dataset(
         todo = [i for i in range(instances) if not (seq_dir / sequence_filename(i)).is_file()]
         done_before = instances - len(todo)
         images_per_seq = cfg.rig.n_cameras * cfg.frames
-        bar = tqdm(total=len(todo), unit="seq", file=sys.stderr, disable=not progress or not todo,
-                   desc=f"dataset {root.name}", dynamic_ncols=True, smoothing=0.1)
+        bar = tqdm(
+            total=len(todo),
+            unit="seq",
+            file=sys.stderr,
+            disable=not progress or not todo,
+            desc=f"dataset {root.name}",
+            dynamic_ncols=True,
+            smoothing=0.1,
+        )
         t_gen = time.perf_counter()
         try:
             if workers == 1 or len(todo) <= 1:

@@ -23,13 +23,13 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin.cad.parts import CIRCLE_SEGMENTS
-from spare_twin.objects import SIM_CIRCLE_SEGMENTS, ObjectFolder, build_sim_twin
 from spare_twin.config import MAX_MOVING_LINKS, ChainSpec, sample_chain
+from spare_twin.object.folder import SIM_CIRCLE_SEGMENTS, ObjectFolder, build_sim_twin
+from spare_twin.object.parts import CIRCLE_SEGMENTS
 from spare_twin.recording import SIM_DEPTH_SCALE
 from spare_twin.sim.motion import MotionConfig, random_motion
 from spare_twin.sim.rig import Rig
-from spare_twin.sim.scene import DomainRandomization, Scene, sample_scene
+from spare_twin.sim.scene import DomainRandomization, sample_scene
 from spare_twin.sim.twin import Twin, projection_matrix, view_matrix
 
 SPLITS = ("train", "val", "test")
@@ -86,7 +86,7 @@ class GenConfig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "GenConfig":
+    def from_dict(cls, d: dict) -> GenConfig:
         d = dict(d)
         d["rig"] = Rig.from_dict(d["rig"])
         d["randomization"] = DomainRandomization(**d.get("randomization", {}))
@@ -173,8 +173,12 @@ def render_sequence(cfg: GenConfig, seed: int, index: int, twin: Twin, workdir: 
         twin.add_box(box["half_extents_m"], box["position_m"], box["rgba"], box["yaw_rad"])
 
     angles = random_motion(
-        obj.joint_limits_rad, obj.link_lengths_phys_m, obj.keepout_height_m, obj.link_half_width_m,
-        np.random.default_rng(seeds["motion"]), cfg.motion(),
+        obj.joint_limits_rad,
+        obj.link_lengths_phys_m,
+        obj.keepout_height_m,
+        obj.link_half_width_m,
+        np.random.default_rng(seeds["motion"]),
+        cfg.motion(),
     )
     rig = cfg.rig
     V, T, H, W = rig.n_cameras, cfg.frames, rig.height, rig.width
@@ -204,7 +208,17 @@ def render_sequence(cfg: GenConfig, seed: int, index: int, twin: Twin, workdir: 
         if labels is not None:
             labels[:, t] = twin.labels(seg)
     return Sequence(
-        index=index, seed=seed, spec=spec, split=split_of(index),
-        depth=depth, grey=grey, segmentation=labels, K=scene.K, T_world_camera=scene.T_world_camera,
-        joint_angles_rad=angles, T_world_link=link_poses, scene=scene.describe(), depth_scale=cfg.depth_scale,
+        index=index,
+        seed=seed,
+        spec=spec,
+        split=split_of(index),
+        depth=depth,
+        grey=grey,
+        segmentation=labels,
+        K=scene.K,
+        T_world_camera=scene.T_world_camera,
+        joint_angles_rad=angles,
+        T_world_link=link_poses,
+        scene=scene.describe(),
+        depth_scale=cfg.depth_scale,
     )

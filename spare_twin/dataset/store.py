@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 SEQUENCE_FORMAT = "spare-twin-sequence/1"
 IMAGE_KEYS = ("depth", "grey", "segmentation")
@@ -55,8 +55,13 @@ def write_sequence(path: str | Path, seq, fps: float, compression_level: int = 1
                 if arr is None:
                     continue
                 f.create_dataset(
-                    key, data=arr, chunks=(1, 1, H, W), compression="gzip",
-                    compression_opts=compression_level, shuffle=arr.dtype.itemsize > 1, track_times=False,
+                    key,
+                    data=arr,
+                    chunks=(1, 1, H, W),
+                    compression="gzip",
+                    compression_opts=compression_level,
+                    shuffle=arr.dtype.itemsize > 1,
+                    track_times=False,
                 )
             small = {
                 "K": np.asarray(seq.K, np.float64),

@@ -23,10 +23,10 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
-from spare_twin import SpareTwinError
 from spare_twin.config import LABEL_SLOTS, MAX_MOVING_LINKS
 from spare_twin.dataset.build import load_manifest
 from spare_twin.dataset.generate import GenConfig, render_sequence
+from spare_twin.errors import SpareTwinError
 from spare_twin.sim.noise import DepthNoise
 
 MODES = ("mv", "tmp")
@@ -68,9 +68,21 @@ class PoseJitter:
         return J @ np.asarray(T_world_camera, np.float64)
 
 
-def make_sample(images, depth_scale, modality, n_links, lengths_label, joints, K, T_wc, print_scale,
-                noise: DepthNoise | None = None, jitter_grey: bool = False, rng=None,
-                pose_jitter: PoseJitter | None = None) -> dict:
+def make_sample(
+    images,
+    depth_scale,
+    modality,
+    n_links,
+    lengths_label,
+    joints,
+    K,
+    T_wc,
+    print_scale,
+    noise: DepthNoise | None = None,
+    jitter_grey: bool = False,
+    rng=None,
+    pose_jitter: PoseJitter | None = None,
+) -> dict:
     """The contract dict from raw stored arrays (images uint16 depth units or uint8 grey)."""
     if pose_jitter is not None:
         T_wc = pose_jitter.apply(T_wc, rng)
@@ -103,9 +115,18 @@ class SpareDataset(Dataset):
     mv, the time steps used (every `frame_stride`-th).
     """
 
-    def __init__(self, root: str | Path, split: str = "train", mode: str = "mv", modality: str = "depth",
-                 frame_stride: int = 1, depth_noise: DepthNoise | None = None, jitter_grey: bool = False, seed: int = 0,
-                 pose_jitter: PoseJitter | None = None):
+    def __init__(
+        self,
+        root: str | Path,
+        split: str = "train",
+        mode: str = "mv",
+        modality: str = "depth",
+        frame_stride: int = 1,
+        depth_noise: DepthNoise | None = None,
+        jitter_grey: bool = False,
+        seed: int = 0,
+        pose_jitter: PoseJitter | None = None,
+    ):
         _check(mode, modality)
         self.root = Path(root)
         self.manifest = load_manifest(self.root)
@@ -158,8 +179,21 @@ class SpareDataset(Dataset):
         else:
             imgs = f[self.modality][j]
             joints, K, T_wc = f["joint_angles_rad"][()], f["K"][j : j + 1], f["T_world_camera"][j : j + 1]
-        return make_sample(imgs, f.attrs["depth_scale"], self.modality, n, f["lengths_label_m"][()], joints, K, T_wc,
-                           f.attrs["print_scale"], self.noise, self.jitter_grey, rng, self.pose_jitter)
+        return make_sample(
+            imgs,
+            f.attrs["depth_scale"],
+            self.modality,
+            n,
+            f["lengths_label_m"][()],
+            joints,
+            K,
+            T_wc,
+            f.attrs["print_scale"],
+            self.noise,
+            self.jitter_grey,
+            rng,
+            self.pose_jitter,
+        )
 
 
 def MultiViewDataset(root, split="train", modality="depth", **kw) -> SpareDataset:
@@ -181,9 +215,19 @@ class OnTheFlyDataset(IterableDataset):
     `sequences` bounds an epoch (None: endless). Call `set_epoch(e)` to draw new sequences each epoch.
     """
 
-    def __init__(self, mode: str = "mv", modality: str = "depth", cfg: GenConfig = GenConfig(), seed: int = 1,
-                 sequences: int | None = None, samples_per_sequence: int = 8, first_index: int = 0,
-                 depth_noise: DepthNoise | None = None, jitter_grey: bool = False, pose_jitter: PoseJitter | None = None):
+    def __init__(
+        self,
+        mode: str = "mv",
+        modality: str = "depth",
+        cfg: GenConfig = GenConfig(),
+        seed: int = 1,
+        sequences: int | None = None,
+        samples_per_sequence: int = 8,
+        first_index: int = 0,
+        depth_noise: DepthNoise | None = None,
+        jitter_grey: bool = False,
+        pose_jitter: PoseJitter | None = None,
+    ):
         _check(mode, modality)
         self.mode, self.modality, self.cfg, self.seed = mode, modality, cfg, seed
         self.sequences, self.per_seq, self.first_index = sequences, samples_per_sequence, first_index
@@ -217,10 +261,27 @@ class OnTheFlyDataset(IterableDataset):
                     if self.mode == "mv":
                         imgs, joints, K, T_wc = images[:, j], seq.joint_angles_rad[j], seq.K, seq.T_world_camera
                     else:
-                        imgs, joints, K, T_wc = images[j], seq.joint_angles_rad, seq.K[j : j + 1], seq.T_world_camera[j : j + 1]
-                    yield make_sample(imgs, seq.depth_scale, self.modality, seq.spec.n_links, seq.spec.label_lengths(),
-                                      joints, K, T_wc, seq.spec.print_scale, self.noise, self.jitter_grey, rng,
-                                      self.pose_jitter)
+                        imgs, joints, K, T_wc = (
+                            images[j],
+                            seq.joint_angles_rad,
+                            seq.K[j : j + 1],
+                            seq.T_world_camera[j : j + 1],
+                        )
+                    yield make_sample(
+                        imgs,
+                        seq.depth_scale,
+                        self.modality,
+                        seq.spec.n_links,
+                        seq.spec.label_lengths(),
+                        joints,
+                        K,
+                        T_wc,
+                        seq.spec.print_scale,
+                        self.noise,
+                        self.jitter_grey,
+                        rng,
+                        self.pose_jitter,
+                    )
                 k += nw
         finally:
             twin.close()

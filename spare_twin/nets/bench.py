@@ -13,7 +13,7 @@ from spare_twin.nets.presets import NetConfig
 
 def example_batch(net: NetConfig, batch_size: int, seed: int = 0) -> dict:
     """A realistic batch (synthetic renders of sampled chains) so the voxel front end sees real sparsity."""
-    from spare_twin.nets.synthetic import SyntheticSpec, make_sample
+    from spare_twin.dataset.synthetic import SyntheticSpec, make_sample
 
     spec = SyntheticSpec(mode=net.mode, input=net.input, frames=net.frames, seed=seed)
     s = make_sample(spec, "bench", 0)
@@ -21,8 +21,15 @@ def example_batch(net: NetConfig, batch_size: int, seed: int = 0) -> dict:
 
 
 @torch.no_grad()
-def bench_inference(model, net: NetConfig, batch_sizes=(1, 16), warmup: int = 2, iters: int = 10,
-                    threads: int | None = None, device: str = "cpu") -> dict:
+def bench_inference(
+    model,
+    net: NetConfig,
+    batch_sizes=(1, 16),
+    warmup: int = 2,
+    iters: int = 10,
+    threads: int | None = None,
+    device: str = "cpu",
+) -> dict:
     """{batch_size: {samples_per_s, latency_ms_per_sample, batch_latency_ms}} (median over iters)."""
     if threads:
         torch.set_num_threads(threads)
@@ -42,5 +49,9 @@ def bench_inference(model, net: NetConfig, batch_sizes=(1, 16), warmup: int = 2,
             if i >= warmup:
                 times.append(time.perf_counter() - t)
         med = float(np.median(times))
-        out[str(bs)] = {"samples_per_s": bs / med, "latency_ms_per_sample": 1000 * med / bs, "batch_latency_ms": 1000 * med}
+        out[str(bs)] = {
+            "samples_per_s": bs / med,
+            "latency_ms_per_sample": 1000 * med / bs,
+            "batch_latency_ms": 1000 * med,
+        }
     return {"threads": torch.get_num_threads(), "device": device, "batch_sizes": out}

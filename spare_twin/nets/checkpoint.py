@@ -20,7 +20,7 @@ import shutil
 import time
 from pathlib import Path
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_bytes_atomic, write_json_atomic
 
 FORMAT = "spare-twin-net"
@@ -103,7 +103,9 @@ def load_model(path: str | Path, device="cpu"):
     try:
         model.load_state_dict(ck["state_dict"])
     except RuntimeError as exc:
-        raise SpareTwinError(f"{path}: weights do not fit the {net.arch} network ({str(exc).splitlines()[0]})") from None
+        raise SpareTwinError(
+            f"{path}: weights do not fit the {net.arch} network ({str(exc).splitlines()[0]})"
+        ) from None
     model.to(device).eval()
     return model, net, ck
 
@@ -128,8 +130,7 @@ def model_card(ck: dict, name: str) -> str:
     lines = [
         f"# {name}",
         "",
-        f"Preset `{ck['preset']}`: {net['arch']} network, task `{net['task']}`, {net['input']} input, "
-        f"{view}.",
+        f"Preset `{ck['preset']}`: {net['arch']} network, task `{net['task']}`, {net['input']} input, {view}.",
         "",
         "| | |",
         "|---|---|",
@@ -182,7 +183,9 @@ def default_model(task: str = "predict", models_dir: Path = MODELS_DIR) -> Path:
     idx = read_index(models_dir)
     name = idx.get("defaults", {}).get(task)
     if not name:
-        raise SpareTwinError(f"{Path(models_dir) / 'index.json'}: no shipped default model for {task!r}; pass --model CKPT")
+        raise SpareTwinError(
+            f"{Path(models_dir) / 'index.json'}: no shipped default model for {task!r}; pass --model CKPT"
+        )
     entry = idx.get("models", {}).get(name, {})
     path = Path(models_dir) / entry.get("file", f"{name}.pt")
     if not path.is_file():

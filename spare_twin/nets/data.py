@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 from spare_twin.nets.presets import NetConfig, TrainConfig
 
 
@@ -51,7 +51,7 @@ def open_split(data_dir, split: str, net: NetConfig, augment: TrainConfig | None
     the sim-to-real augmentation of `augment` (a TrainConfig) applied at read time."""
     data_dir = _check_dir(data_dir)
     if _is_synthetic(data_dir):
-        from spare_twin.nets.synthetic import SyntheticDataset, read_spec
+        from spare_twin.dataset.synthetic import SyntheticDataset, read_spec
 
         spec = read_spec(data_dir)
         if (spec.mode, spec.input) != (net.mode, net.input):
@@ -59,27 +59,39 @@ def open_split(data_dir, split: str, net: NetConfig, augment: TrainConfig | None
                 f"--data {data_dir}: synthetic {spec.mode}/{spec.input} data, but the network wants {net.mode}/{net.input}"
             )
         if augmentation(augment):
-            raise SpareTwinError(f"--data {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data")
+            raise SpareTwinError(
+                f"--data {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data"
+            )
         return SyntheticDataset(spec, split)
     if not (data_dir / "manifest.json").is_file():
         raise SpareTwinError(f"--data {data_dir}: not a dataset (no manifest.json; make one with spare-twin dataset)")
     from spare_twin.dataset.torch_data import SpareDataset
 
-    ds = SpareDataset(data_dir, split=split, mode=net.mode, modality=net.input, seed=augment.seed if augment else 0,
-                      **augmentation(augment))
+    ds = SpareDataset(
+        data_dir,
+        split=split,
+        mode=net.mode,
+        modality=net.input,
+        seed=augment.seed if augment else 0,
+        **augmentation(augment),
+    )
     if len(ds) == 0:
         raise SpareTwinError(f"--data {data_dir}: the {split} split is empty")
     return ds
 
 
-def open_on_the_fly(data_dir, net: NetConfig, seed: int, samples: int | None = None, augment: TrainConfig | None = None):
+def open_on_the_fly(
+    data_dir, net: NetConfig, seed: int, samples: int | None = None, augment: TrainConfig | None = None
+):
     """An IterableDataset of freshly rendered samples (--on-the-fly), same generator as the stored data."""
     data_dir = _check_dir(data_dir)
     if _is_synthetic(data_dir):
-        from spare_twin.nets.synthetic import SyntheticOnTheFly, read_spec
+        from spare_twin.dataset.synthetic import SyntheticOnTheFly, read_spec
 
         if augmentation(augment):
-            raise SpareTwinError(f"--data {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data")
+            raise SpareTwinError(
+                f"--data {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data"
+            )
         return SyntheticOnTheFly(read_spec(data_dir), seed)
     from spare_twin.dataset.generate import GenConfig
     from spare_twin.dataset.torch_data import OnTheFlyDataset
@@ -88,15 +100,22 @@ def open_on_the_fly(data_dir, net: NetConfig, seed: int, samples: int | None = N
     per_seq = 8
     sequences = None if samples is None else -(-samples // per_seq)
     # a seed far from the stored dataset's, so fresh sequences never repeat stored (test!) ones
-    return OnTheFlyDataset(net.mode, net.input, GenConfig.from_dict(m["generator"]), seed=10_000 + seed,
-                           sequences=sequences, samples_per_sequence=per_seq, **augmentation(augment))
+    return OnTheFlyDataset(
+        net.mode,
+        net.input,
+        GenConfig.from_dict(m["generator"]),
+        seed=10_000 + seed,
+        sequences=sequences,
+        samples_per_sequence=per_seq,
+        **augmentation(augment),
+    )
 
 
 def dataset_rig(data_dir) -> str | None:
     """The rig name the data was rendered with (predict compares it with a recording's rig)."""
     data_dir = Path(data_dir)
     if _is_synthetic(data_dir):
-        from spare_twin.nets.synthetic import RIG_NAME
+        from spare_twin.dataset.synthetic import RIG_NAME
 
         return RIG_NAME
     try:

@@ -6,15 +6,23 @@ from pathlib import Path
 
 import torch
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.data import open_split
 from spare_twin.nets.train import pick_device, run_inference, summarize
 
 
-def evaluate(model_path, data_dir, split: str = "test", device: str = "auto", batch_size: int = 16,
-             out_dir=None, max_samples: int | None = None, progress: bool = True) -> dict:
+def evaluate(
+    model_path,
+    data_dir,
+    split: str = "test",
+    device: str = "auto",
+    batch_size: int = 16,
+    out_dir=None,
+    max_samples: int | None = None,
+    progress: bool = True,
+) -> dict:
     """Count accuracy, E_L (end-to-end where the model can, else n known), per-n breakdown and the
     confusion matrix (PNG under `out_dir`) over `split`."""
     dev = pick_device(device)
@@ -59,5 +67,3 @@ def record_metrics(model_path, result: dict, command: str) -> None:
     ck["meta"]["metrics"]["data"] = str(result.get("data", ""))
     ck["meta"]["evaluate_command"] = command
     ckpt.save(model_path, ck)
-
-

@@ -28,7 +28,9 @@ def pixel_rays(K: torch.Tensor, height: int, width: int) -> torch.Tensor:
     return torch.stack([x, y, torch.ones_like(x)], dim=-2)
 
 
-def backproject(depth_m: torch.Tensor, K: torch.Tensor, T_world_camera: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def backproject(
+    depth_m: torch.Tensor, K: torch.Tensor, T_world_camera: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
     """depth (B, V, H, W), K (B, V, 3, 3), T (B, V, 4, 4) -> world points (B, V, H*W, 3), valid (B, V, H*W)."""
     B, V, H, W = depth_m.shape
     rays = pixel_rays(K, H, W)  # (B, V, 3, HW)
@@ -70,7 +72,11 @@ def voxelize(
     # background or table, and the 8-corner splat is the expensive part.
     b_idx, v_idx, _ = torch.nonzero(valid, as_tuple=True)
     p = p[valid]
-    chan = torch.zeros(V, dtype=torch.long, device=p.device) if channel_of_view is None else channel_of_view.to(p.device).long()
+    chan = (
+        torch.zeros(V, dtype=torch.long, device=p.device)
+        if channel_of_view is None
+        else channel_of_view.to(p.device).long()
+    )
     bc = b_idx * n_channels + chan[v_idx]
     c = (p - lo) / size - 0.5  # continuous voxel coordinates, voxel centres at integers
     base = torch.floor(c)

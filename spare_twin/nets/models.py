@@ -34,8 +34,11 @@ class InputNorm(nn.Module):
 def paper_head(in_features: int, out: int, hidden: int, dropout: float) -> nn.Sequential:
     """FC `hidden` ReLU, FC `hidden` linear, then `out` linear outputs (the paper's heads)."""
     return nn.Sequential(
-        nn.Linear(in_features, hidden), nn.ReLU(inplace=True), nn.Dropout(dropout),
-        nn.Linear(hidden, hidden), nn.Linear(hidden, out),
+        nn.Linear(in_features, hidden),
+        nn.ReLU(inplace=True),
+        nn.Dropout(dropout),
+        nn.Linear(hidden, hidden),
+        nn.Linear(hidden, out),
     )
 
 
@@ -71,11 +74,20 @@ class FrameCNN(nn.Module):
         super().__init__()
         layers, cin = [], 1
         for i, c in enumerate(cfg.channels):
-            layers += [nn.Conv2d(cin, c, 3, stride=2 if i == 0 else 1, padding=1, bias=False), nn.BatchNorm2d(c), nn.ReLU(inplace=True)]
+            layers += [
+                nn.Conv2d(cin, c, 3, stride=2 if i == 0 else 1, padding=1, bias=False),
+                nn.BatchNorm2d(c),
+                nn.ReLU(inplace=True),
+            ]
             if i < len(cfg.channels) - 1:
                 layers.append(nn.MaxPool2d(2, ceil_mode=True))
             cin = c
-        layers += [nn.AdaptiveAvgPool2d((3, 4)), nn.Flatten(), nn.Linear(cfg.channels[-1] * 12, cfg.frame_features), nn.ReLU(inplace=True)]
+        layers += [
+            nn.AdaptiveAvgPool2d((3, 4)),
+            nn.Flatten(),
+            nn.Linear(cfg.channels[-1] * 12, cfg.frame_features),
+            nn.ReLU(inplace=True),
+        ]
         self.net = nn.Sequential(*layers)
 
     def forward(self, x):  # (N, H, W)
@@ -171,8 +183,12 @@ class GeoVoxelNet(nn.Module):
         layers = [nn.Conv3d(cin, ch[0], 3, padding=1, bias=False), nn.BatchNorm3d(ch[0]), nn.ReLU(inplace=True)]
         for a, b in zip(ch, ch[1:]):
             layers += [
-                nn.Conv3d(a, b, 3, stride=2, padding=1, bias=False), nn.BatchNorm3d(b), nn.ReLU(inplace=True),
-                nn.Conv3d(b, b, 3, padding=1, bias=False), nn.BatchNorm3d(b), nn.ReLU(inplace=True),
+                nn.Conv3d(a, b, 3, stride=2, padding=1, bias=False),
+                nn.BatchNorm3d(b),
+                nn.ReLU(inplace=True),
+                nn.Conv3d(b, b, 3, padding=1, bias=False),
+                nn.BatchNorm3d(b),
+                nn.ReLU(inplace=True),
             ]
         # squeeze channels before flattening: position matters (heights, extents), so no global pool
         layers += [nn.Conv3d(ch[-1], 32, 1), nn.ReLU(inplace=True)]
@@ -180,7 +196,9 @@ class GeoVoxelNet(nn.Module):
         nx, ny, nz = cfg.grid.cells
         for _ in ch[1:]:
             nx, ny, nz = (nx + 1) // 2, (ny + 1) // 2, (nz + 1) // 2
-        self.fc = nn.Sequential(nn.Flatten(), nn.Linear(32 * nx * ny * nz, cfg.fc_hidden), nn.ReLU(inplace=True), nn.Dropout(cfg.dropout))
+        self.fc = nn.Sequential(
+            nn.Flatten(), nn.Linear(32 * nx * ny * nz, cfg.fc_hidden), nn.ReLU(inplace=True), nn.Dropout(cfg.dropout)
+        )
         self.heads = nn.ModuleDict()
         if cfg.task in ("count", "multitask"):
             self.heads["count_logits"] = nn.Linear(cfg.fc_hidden, N_CLASSES)

@@ -88,7 +88,7 @@ def _panel(img, x0, y0, w, h, series: dict[str, list[float]], title: str, log_y:
         fv = lo + (hi - lo) * t / 4
         yy = int(y0 + h - h * t / 4)
         cv2.line(img, (x0, yy), (x0 + w, yy), (235, 235, 235), 1)
-        lab = f"{10 ** fv:.3g}" if log_y else f"{fv:.3g}"
+        lab = f"{10**fv:.3g}" if log_y else f"{fv:.3g}"
         _text(img, lab, (x0 - 58, yy + 4), 0.38)
     step = max(1, n_ep // 8)
     for i in range(0, n_ep, step):  # x ticks: epochs, 1-based

@@ -4,7 +4,7 @@ The recording's views are brought into the network's input space: 96 x 128, cent
 4:3 aspect and resized, with the intrinsics adjusted to match (depth resized with nearest
 neighbour, so no depth is invented at edges). A recording from the training rig is used as it is.
 Any other recording is brought into the canonical object frame (base at the origin on the table, z up,
-chain in x-z; see `spare_twin.capture.canonical`): the geometry-aware voxel networks take its own
+chain in x-z; see `spare_twin.observe.canonical`): the geometry-aware voxel networks take its own
 posed views moved into that frame, the image networks see it re-rendered into the training rig
 (`to_rig_views`). A real recording's object frame is known only up to a yaw hypothesis (a quarter
 turn); the network runs on every hypothesis and the most confident output (largest count
@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from spare_twin import SpareTwinError
 from spare_twin.capture.frames import fit_view
+from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.models import decode, model_inputs
 from spare_twin.nets.presets import NetConfig
@@ -36,8 +36,6 @@ def _view(rec, cam, frame: int, net: NetConfig) -> tuple[np.ndarray, np.ndarray,
         img, K = fit_view(grey, c.K, net.height, net.width, nearest=False)
     T = rec.T_world_camera(cam, frame)
     return img.astype(np.float32), K, T
-
-
 
 
 def _print_scale(rec, print_scale: float | None) -> float:
@@ -62,13 +60,16 @@ def _batch(views: list, net: NetConfig, print_scale: float) -> dict:
     }
 
 
-def recording_sample(rec, net: NetConfig, frame: int | None = None, camera: str | None = None,
-                     print_scale: float | None = None) -> dict:
+def recording_sample(
+    rec, net: NetConfig, frame: int | None = None, camera: str | None = None, print_scale: float | None = None
+) -> dict:
     """A batch of one in the CONTRACTS.md layout from a recording's own views (its world as it is)."""
     needs_poses = net.arch == "geo_voxel"
     if net.mode == "mv":
         if len(rec.cameras) != net.frames:
-            raise SpareTwinError(f"{rec.root}: the network takes {net.frames} views, the recording has {len(rec.cameras)} cameras")
+            raise SpareTwinError(
+                f"{rec.root}: the network takes {net.frames} views, the recording has {len(rec.cameras)} cameras"
+            )
         frame = rec.n_frames // 2 if frame is None else frame
         views = [_view(rec, c.name, frame, net) for c in rec.cameras]
     else:
@@ -84,12 +85,21 @@ def recording_sample(rec, net: NetConfig, frame: int | None = None, camera: str 
 def _sim_world(rec) -> bool:
     """An unregistered simulation recording with posed cameras: its world already is the canonical
     object frame (base at the origin, chain in x-z), so its poses are used as they are."""
-    return (not rec.meta.get("registration") and rec.source.get("kind") == "sim"
-            and all(c.poses != "unknown" for c in rec.cameras))
+    return (
+        not rec.meta.get("registration")
+        and rec.source.get("kind") == "sim"
+        and all(c.poses != "unknown" for c in rec.cameras)
+    )
 
 
-def _posed_views(rec, net: NetConfig, frame: int | None, camera: str | None, T_canonical_world: np.ndarray,
-                 camera_poses: dict | None = None) -> list:
+def _posed_views(
+    rec,
+    net: NetConfig,
+    frame: int | None,
+    camera: str | None,
+    T_canonical_world: np.ndarray,
+    camera_poses: dict | None = None,
+) -> list:
     """net.frames posed views for the voxel network, poses moved into the canonical frame: the
     recording's cameras at `frame` when it has that many posed ones, else frames of one camera spread
     over the recording (a hand-held sweep round a still object). `camera_poses` ({(camera, frame):
@@ -111,10 +121,19 @@ def _posed_views(rec, net: NetConfig, frame: int | None, camera: str | None, T_c
     return views
 
 
-def recording_batches(rec, net: NetConfig, training_rig: str | None, frame: int | None = None,
-                      camera: str | None = None, print_scale: float | None = None, workdir=None,
-                      progress: bool = True, yaw_hypotheses: int = 4, T_world_base: np.ndarray | None = None,
-                      camera_poses: dict | None = None) -> tuple[list[dict], tuple[float, ...], str]:
+def recording_batches(
+    rec,
+    net: NetConfig,
+    training_rig: str | None,
+    frame: int | None = None,
+    camera: str | None = None,
+    print_scale: float | None = None,
+    workdir=None,
+    progress: bool = True,
+    yaw_hypotheses: int = 4,
+    T_world_base: np.ndarray | None = None,
+    camera_poses: dict | None = None,
+) -> tuple[list[dict], tuple[float, ...], str]:
     """The network inputs for a recording, one batch per yaw hypothesis, the yaws and the method:
 
     - "rig": the recording is the training rig (or the model does not name its rig): its own views;
@@ -128,7 +147,7 @@ def recording_batches(rec, net: NetConfig, training_rig: str | None, frame: int 
     """
     import tempfile
 
-    from spare_twin.capture import canonical
+    from spare_twin.observe import canonical
 
     ps = _print_scale(rec, print_scale)
     cfg = canonical.CanonicalConfig(yaw_hypotheses=yaw_hypotheses)
@@ -145,8 +164,10 @@ def recording_batches(rec, net: NetConfig, training_rig: str | None, frame: int 
         with tempfile.TemporaryDirectory(dir=workdir) as tmp:
             reg = canonical.registered(rec, tmp, progress)
             obj = canonical.object_frame(reg, cfg)
-            batches = [_batch(_posed_views(reg, net, frame, camera, np.linalg.inv(obj.T_world_canonical(k))), net, ps)
-                       for k in range(len(obj.yaws_rad))]
+            batches = [
+                _batch(_posed_views(reg, net, frame, camera, np.linalg.inv(obj.T_world_canonical(k))), net, ps)
+                for k in range(len(obj.yaws_rad))
+            ]
         return batches, obj.yaws_rad, "posed"
     if net.arch == "geo_voxel" and _sim_world(rec) and rec.camera(camera or rec.cameras[0].name).poses == "fixed":
         # a fixed camera in the canonical world: its own frames keep the motion the temporal net reads
@@ -171,10 +192,20 @@ def _canonical_batch(cv, k: int, net: NetConfig, camera: str | None, print_scale
     return _batch(views, net, print_scale)
 
 
-def predict_recording(rec_dir, model_path=None, frame: int | None = None, camera: str | None = None,
-                      print_scale: float | None = None, n_links: int | None = None, device: str = "cpu",
-                      progress: bool = True, yaw_hypotheses: int = 4, return_input: bool = False,
-                      T_world_base: np.ndarray | None = None, camera_poses: dict | None = None) -> dict:
+def predict_recording(
+    rec_dir,
+    model_path=None,
+    frame: int | None = None,
+    camera: str | None = None,
+    print_scale: float | None = None,
+    n_links: int | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+    yaw_hypotheses: int = 4,
+    return_input: bool = False,
+    T_world_base: np.ndarray | None = None,
+    camera_poses: dict | None = None,
+) -> dict:
     """The network's prediction for a recording; `return_input` adds `network_input`, the (V, H, W)
     views it saw for the chosen yaw (numpy, not JSON: for logging). `T_world_base` fixes the object
     frame of a posed recording for voxel networks, `camera_poses` refines its camera poses (see
@@ -186,9 +217,18 @@ def predict_recording(rec_dir, model_path=None, frame: int | None = None, camera
     rec = Recording.open(rec_dir)
     if frame is not None and not 0 <= frame < rec.n_frames:
         raise SpareTwinError(f"--frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
-    batches, yaws, method = recording_batches(rec, net, ck["meta"].get("rig"), frame, camera, print_scale,
-                                              progress=progress, yaw_hypotheses=yaw_hypotheses, T_world_base=T_world_base,
-                                              camera_poses=camera_poses)
+    batches, yaws, method = recording_batches(
+        rec,
+        net,
+        ck["meta"].get("rig"),
+        frame,
+        camera,
+        print_scale,
+        progress=progress,
+        yaw_hypotheses=yaw_hypotheses,
+        T_world_base=T_world_base,
+        camera_poses=camera_poses,
+    )
     batch = {k: torch.cat([b[k] for b in batches]) for k in batches[0]}  # one forward pass for all yaws
     true_n = None
     if net.arch == "conv3d_per_n":

@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 ARCHS = ("conv3d", "cnn_lstm", "conv3d_per_n", "naive", "geo_voxel")
 TASKS = ("count", "lengths", "e2e", "multitask")
@@ -151,51 +151,137 @@ PRESETS: dict[str, Preset] = {
     p.name: p
     for p in [
         # --- the paper's Table 1 ------------------------------------------------------------
-        _p("conv3d-depth-tmp-count", NetConfig("conv3d", "count", "depth", **_TMP), _TMP_TRAIN,
-           "Conv3D link counter on 100 depth frames of one camera", "CONV3D-Depth-TMP / count", 0.682, "count_accuracy"),
-        _p("lstm-depth-tmp-count", NetConfig("cnn_lstm", "count", "depth", **_TMP), _TMP_TRAIN,
-           "shared per-frame CNN + LSTM(64) link counter, 100 depth frames", "LSTM-Depth-TMP / count", 0.638, "count_accuracy"),
-        _p("conv3d-depth-mv-count", NetConfig("conv3d", "count", "depth"), None,
-           "Conv3D link counter on the 8 depth views of one time step", "CONV3D-Depth-MV / count", 0.949, "count_accuracy"),
-        _p("lstm-depth-mv-count", NetConfig("cnn_lstm", "count", "depth"), None,
-           "shared per-view CNN + LSTM(64) link counter, 8 depth views", "LSTM-Depth-MV / count", 0.956, "count_accuracy"),
-        _p("conv3d-grey-tmp-count", NetConfig("conv3d", "count", "grey", **_TMP), _TMP_TRAIN,
-           "Conv3D link counter on 100 grey frames", "CONV3D-Grey-TMP / count", 0.559, "count_accuracy"),
-        _p("lstm-grey-mv-count", NetConfig("cnn_lstm", "count", "grey"), None,
-           "shared per-view CNN + LSTM(64) link counter, 8 grey views", "LSTM-Grey-MV / count", 0.891, "count_accuracy"),
-        _p("conv3d-depth-tmp-lengths", NetConfig("conv3d_per_n", "lengths", "depth", **_TMP), _TMP_TRAIN,
-           "six Conv3D length regressors, one per link count (n known), 100 depth frames",
-           "CONV3D-Depth-TMP / lengths, n known", 6.64, "E_L"),
-        _p("conv3d-depth-mv-lengths", NetConfig("conv3d_per_n", "lengths", "depth"), None,
-           "six Conv3D length regressors, one per link count (n known), 8 depth views",
-           "CONV3D-Depth-MV / lengths, n known", 0.543, "E_L"),
-        _p("conv3d-depth-tmp-e2e", NetConfig("conv3d", "e2e", "depth", **_TMP), _TMP_TRAIN,
-           "Conv3D end-to-end: the 7-slot length label directly, 100 depth frames",
-           "CONV3D-Depth-TMP / end-to-end", 14.8, "E_L"),
-        _p("conv3d-depth-mv-e2e", NetConfig("conv3d", "e2e", "depth"), None,
-           "Conv3D end-to-end: the 7-slot length label directly, 8 depth views",
-           "CONV3D-Depth-MV / end-to-end", 0.415, "E_L"),
-        _p("conv3d-depth-mv-naive", NetConfig("naive", "e2e", "depth"), None,
-           "the paper's naive combination: the Conv3D counter picks which per-n regressor measures"),
-        _p("conv3d-depth-tmp-naive", NetConfig("naive", "e2e", "depth", **_TMP), _TMP_TRAIN,
-           "naive combination (counter + per-n regressors), 100 depth frames"),
+        _p(
+            "conv3d-depth-tmp-count",
+            NetConfig("conv3d", "count", "depth", **_TMP),
+            _TMP_TRAIN,
+            "Conv3D link counter on 100 depth frames of one camera",
+            "CONV3D-Depth-TMP / count",
+            0.682,
+            "count_accuracy",
+        ),
+        _p(
+            "lstm-depth-tmp-count",
+            NetConfig("cnn_lstm", "count", "depth", **_TMP),
+            _TMP_TRAIN,
+            "shared per-frame CNN + LSTM(64) link counter, 100 depth frames",
+            "LSTM-Depth-TMP / count",
+            0.638,
+            "count_accuracy",
+        ),
+        _p(
+            "conv3d-depth-mv-count",
+            NetConfig("conv3d", "count", "depth"),
+            None,
+            "Conv3D link counter on the 8 depth views of one time step",
+            "CONV3D-Depth-MV / count",
+            0.949,
+            "count_accuracy",
+        ),
+        _p(
+            "lstm-depth-mv-count",
+            NetConfig("cnn_lstm", "count", "depth"),
+            None,
+            "shared per-view CNN + LSTM(64) link counter, 8 depth views",
+            "LSTM-Depth-MV / count",
+            0.956,
+            "count_accuracy",
+        ),
+        _p(
+            "conv3d-grey-tmp-count",
+            NetConfig("conv3d", "count", "grey", **_TMP),
+            _TMP_TRAIN,
+            "Conv3D link counter on 100 grey frames",
+            "CONV3D-Grey-TMP / count",
+            0.559,
+            "count_accuracy",
+        ),
+        _p(
+            "lstm-grey-mv-count",
+            NetConfig("cnn_lstm", "count", "grey"),
+            None,
+            "shared per-view CNN + LSTM(64) link counter, 8 grey views",
+            "LSTM-Grey-MV / count",
+            0.891,
+            "count_accuracy",
+        ),
+        _p(
+            "conv3d-depth-tmp-lengths",
+            NetConfig("conv3d_per_n", "lengths", "depth", **_TMP),
+            _TMP_TRAIN,
+            "six Conv3D length regressors, one per link count (n known), 100 depth frames",
+            "CONV3D-Depth-TMP / lengths, n known",
+            6.64,
+            "E_L",
+        ),
+        _p(
+            "conv3d-depth-mv-lengths",
+            NetConfig("conv3d_per_n", "lengths", "depth"),
+            None,
+            "six Conv3D length regressors, one per link count (n known), 8 depth views",
+            "CONV3D-Depth-MV / lengths, n known",
+            0.543,
+            "E_L",
+        ),
+        _p(
+            "conv3d-depth-tmp-e2e",
+            NetConfig("conv3d", "e2e", "depth", **_TMP),
+            _TMP_TRAIN,
+            "Conv3D end-to-end: the 7-slot length label directly, 100 depth frames",
+            "CONV3D-Depth-TMP / end-to-end",
+            14.8,
+            "E_L",
+        ),
+        _p(
+            "conv3d-depth-mv-e2e",
+            NetConfig("conv3d", "e2e", "depth"),
+            None,
+            "Conv3D end-to-end: the 7-slot length label directly, 8 depth views",
+            "CONV3D-Depth-MV / end-to-end",
+            0.415,
+            "E_L",
+        ),
+        _p(
+            "conv3d-depth-mv-naive",
+            NetConfig("naive", "e2e", "depth"),
+            None,
+            "the paper's naive combination: the Conv3D counter picks which per-n regressor measures",
+        ),
+        _p(
+            "conv3d-depth-tmp-naive",
+            NetConfig("naive", "e2e", "depth", **_TMP),
+            _TMP_TRAIN,
+            "naive combination (counter + per-n regressors), 100 depth frames",
+        ),
         # --- this project's geometry-aware networks -----------------------------------------
-        _p("geo-depth-mv-multitask",
-           NetConfig("geo_voxel", "multitask", "depth", channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1,
-                     predict_angles=True),
-           TrainConfig(epochs=15, batch_size=16, lr=2e-3, samples_per_epoch=4000),
-           "the 8 depth views back-projected through the rig's poses into one world-frame voxel grid "
-           "(paper units); a small 3D CNN predicts count, 7-slot lengths and joint angles"),
-        _p("geo-depth-mv-count",
-           NetConfig("geo_voxel", "count", "depth", channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1),
-           TrainConfig(epochs=15, batch_size=16, lr=2e-3, samples_per_epoch=4000),
-           "voxel-fusion counter (8 depth views)"),
-        _p("geo-depth-tmp-multitask",
-           NetConfig("geo_voxel", "multitask", "depth", channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1,
-                     **_TMP),
-           TrainConfig(epochs=15, batch_size=16, lr=2e-3),
-           "one camera's 100 frames back-projected into the world grid, 10 evenly spaced frames as "
-           "channels (motion shows which parts move together); count + 7-slot lengths"),
+        _p(
+            "geo-depth-mv-multitask",
+            NetConfig(
+                "geo_voxel",
+                "multitask",
+                "depth",
+                channels=(16, 32, 64, 96),
+                fc_hidden=256,
+                dropout=0.1,
+                predict_angles=True,
+            ),
+            TrainConfig(epochs=15, batch_size=16, lr=2e-3, samples_per_epoch=4000),
+            "the 8 depth views back-projected through the rig's poses into one world-frame voxel grid "
+            "(paper units); a small 3D CNN predicts count, 7-slot lengths and joint angles",
+        ),
+        _p(
+            "geo-depth-mv-count",
+            NetConfig("geo_voxel", "count", "depth", channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1),
+            TrainConfig(epochs=15, batch_size=16, lr=2e-3, samples_per_epoch=4000),
+            "voxel-fusion counter (8 depth views)",
+        ),
+        _p(
+            "geo-depth-tmp-multitask",
+            NetConfig("geo_voxel", "multitask", "depth", channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1, **_TMP),
+            TrainConfig(epochs=15, batch_size=16, lr=2e-3),
+            "one camera's 100 frames back-projected into the world grid, 10 evenly spaced frames as "
+            "channels (motion shows which parts move together); count + 7-slot lengths",
+        ),
     ]
 }
 
@@ -249,7 +335,7 @@ def resolve(preset: str | None, config: dict | None, source: str = "--config") -
     config = dict(config or {})
     name = config.pop("preset", None) or preset
     if name is None:
-        raise SpareTwinError(f"{source}: name a base preset (--preset NAME or \"preset\" in the file)")
+        raise SpareTwinError(f'{source}: name a base preset (--preset NAME or "preset" in the file)')
     base = get_preset(name)
     net = _replace(base.net, config.pop("net", {}), f"{source}: net")
     train = _replace(base.train, config.pop("train", {}), f"{source}: train")

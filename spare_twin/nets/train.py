@@ -22,7 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
@@ -47,7 +47,9 @@ def compute_loss(net: NetConfig, tr: TrainConfig, out: dict, batch: dict, device
     n = batch["n_links"].to(device)
     loss = torch.zeros((), device=device)
     if "count_logits" in out:
-        loss = loss + tr.count_weight * nn.functional.cross_entropy(out["count_logits"], n - 1, label_smoothing=tr.label_smoothing)
+        loss = loss + tr.count_weight * nn.functional.cross_entropy(
+            out["count_logits"], n - 1, label_smoothing=tr.label_smoothing
+        )
     if "lengths" in out:
         target = batch["lengths_m"].to(device, torch.float32)
         err = (out["lengths"] - target) ** 2
@@ -84,7 +86,9 @@ def measure_normalization(model, ds, seed: int, samples: int = 64) -> None:
 
 
 @torch.no_grad()
-def run_inference(model, net: NetConfig, ds, device, batch_size: int, indices=None, desc: str = "eval", progress=True) -> dict:
+def run_inference(
+    model, net: NetConfig, ds, device, batch_size: int, indices=None, desc: str = "eval", progress=True
+) -> dict:
     """Predictions and labels over (a subset of) a dataset: numpy arrays for metrics.py."""
     from tqdm import tqdm
 
@@ -181,7 +185,10 @@ def train(
 
     if resume:
         state = ckpt.load(last_path, dev)
-        if state.get("preset") != preset.name or state.get("net") != ckpt.model_record(preset.name, net, tr, model, {})["net"]:
+        if (
+            state.get("preset") != preset.name
+            or state.get("net") != ckpt.model_record(preset.name, net, tr, model, {})["net"]
+        ):
             raise SpareTwinError(f"--resume: {last_path} was trained with a different network configuration")
         model.load_state_dict(state["state_dict"])
         opt.load_state_dict(state["optimizer"])
@@ -194,14 +201,19 @@ def train(
         if start.get("net") != ckpt.model_record(preset.name, net, tr, model, {})["net"]:
             raise SpareTwinError(f"init_from {tr.init_from}: trained with a different network configuration")
         model.load_state_dict(start["state_dict"])  # its input normalisation comes with it
-        meta["init_from"] = {"path": str(tr.init_from), "preset": start.get("preset"),
-                             "epochs_trained": start.get("meta", {}).get("epochs_trained")}
+        meta["init_from"] = {
+            "path": str(tr.init_from),
+            "preset": start.get("preset"),
+            "epochs_trained": start.get("meta", {}).get("epochs_trained"),
+        }
     else:
         measure_normalization(model, stored_train, tr.seed)
 
     val_idx = None
     if val_ds is not None and tr.val_samples is not None and tr.val_samples < len(val_ds):
-        val_idx = torch.randperm(len(val_ds), generator=torch.Generator().manual_seed(tr.seed + 1))[: tr.val_samples].tolist()
+        val_idx = torch.randperm(len(val_ds), generator=torch.Generator().manual_seed(tr.seed + 1))[
+            : tr.val_samples
+        ].tolist()
 
     for epoch in range(start_epoch, tr.epochs):
         t0 = time.time()
@@ -215,12 +227,19 @@ def train(
             n_batches = math.ceil(n_ep / tr.batch_size)
         else:
             idx = _epoch_indices(len(train_src), tr, epoch)
-            loader = torch.utils.data.DataLoader(torch.utils.data.Subset(train_src, idx), batch_size=tr.batch_size,
-                                                 shuffle=False, num_workers=tr.workers, drop_last=len(idx) > tr.batch_size)
+            loader = torch.utils.data.DataLoader(
+                torch.utils.data.Subset(train_src, idx),
+                batch_size=tr.batch_size,
+                shuffle=False,
+                num_workers=tr.workers,
+                drop_last=len(idx) > tr.batch_size,
+            )
             n_batches = len(loader)
         model.train()
         losses = []
-        bar = tqdm(total=n_batches, desc=f"epoch {epoch + 1}/{tr.epochs}", file=sys.stderr, disable=not progress, leave=False)
+        bar = tqdm(
+            total=n_batches, desc=f"epoch {epoch + 1}/{tr.epochs}", file=sys.stderr, disable=not progress, leave=False
+        )
         for b, batch in enumerate(loader):
             if b >= n_batches:
                 break
@@ -237,7 +256,12 @@ def train(
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
         bar.close()
         train_time_s += time.time() - t0
-        row = {"epoch": epoch + 1, "lr": lr, "train_loss": float(np.mean(losses)) if losses else None, "time_s": time.time() - t0}
+        row = {
+            "epoch": epoch + 1,
+            "lr": lr,
+            "train_loss": float(np.mean(losses)) if losses else None,
+            "time_s": time.time() - t0,
+        }
         if val_ds is not None:
             pred = run_inference(model, net, val_ds, dev, tr.batch_size, val_idx, "validate", progress)
             m = summarize(pred)
@@ -249,16 +273,31 @@ def train(
         meta.update(epochs_trained=epoch + 1, train_time_s=train_time_s)
         if score > best_score:
             best_score = score
-            best = ckpt.model_record(preset.name, net, tr, model, dict(meta, best_epoch=epoch + 1,
-                                     val_metrics={k: v for k, v in row.items() if k.startswith("val_")}))
+            best = ckpt.model_record(
+                preset.name,
+                net,
+                tr,
+                model,
+                dict(meta, best_epoch=epoch + 1, val_metrics={k: v for k, v in row.items() if k.startswith("val_")}),
+            )
             ckpt.save(out_dir / "best.pt", best)
         state = ckpt.model_record(preset.name, net, tr, model, meta)
-        state.update(optimizer=opt.state_dict(), epoch=epoch, history=history, rng=torch.get_rng_state(),
-                     best_score=best_score, train_time_s=train_time_s)
+        state.update(
+            optimizer=opt.state_dict(),
+            epoch=epoch,
+            history=history,
+            rng=torch.get_rng_state(),
+            best_score=best_score,
+            train_time_s=train_time_s,
+        )
         ckpt.save(last_path, state)  # written last: a crash before here repeats this epoch on resume
         write_json_atomic(out_dir / "history.json", history)
         metrics.write_learning_curve_png(history, out_dir / "learning_curve.png", preset.name)
-        shown = {k: round(v, 4) for k, v in row.items() if k in ("train_loss", "val_count_accuracy", "val_E_L") and v is not None}
+        shown = {
+            k: round(v, 4)
+            for k, v in row.items()
+            if k in ("train_loss", "val_count_accuracy", "val_E_L") and v is not None
+        }
         print(f"epoch {epoch + 1}/{tr.epochs} {json.dumps(shown)} ({row['time_s']:.0f} s)", file=sys.stderr)
 
     # model.pt: the best epoch, with the final training time in its metadata

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 from spare_twin.sim.rig import _axis_angle, look_at
 
 
@@ -73,11 +73,15 @@ def handheld_poses(cfg: HandheldPath, n_frames: int, seed: int) -> np.ndarray:
     az = az0 + math.radians(cfg.sweep_deg) * (s + 0.15 / (2 * math.pi) * _wander(rng, s, cfg.n_waves))
     radius = cfg.radius_m + cfg.radius_wander_m * _wander(rng, s, cfg.n_waves)
     height = cfg.height_m + cfg.height_wander_m * _wander(rng, s, cfg.n_waves)
-    aim = np.asarray(cfg.look_at_m, float)[None] + cfg.aim_wander_m * np.stack([_wander(rng, s, cfg.n_waves) for _ in range(3)], 1)
+    aim = np.asarray(cfg.look_at_m, float)[None] + cfg.aim_wander_m * np.stack(
+        [_wander(rng, s, cfg.n_waves) for _ in range(3)], 1
+    )
     roll = np.radians(cfg.roll_deg) * _wander(rng, s, cfg.n_waves)
     out = np.zeros((n_frames, 4, 4))
     for t in range(n_frames):
-        eye = aim[t] * np.array([1.0, 1.0, 0.0]) + np.array([radius[t] * math.cos(az[t]), radius[t] * math.sin(az[t]), height[t]])
+        eye = aim[t] * np.array([1.0, 1.0, 0.0]) + np.array(
+            [radius[t] * math.cos(az[t]), radius[t] * math.sin(az[t]), height[t]]
+        )
         T = look_at(eye, aim[t])
         R = T[:3, :3] @ _axis_angle(np.array([0.0, 0.0, 1.0]), roll[t])  # roll about the optical axis
         axis = rng.normal(size=3)

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spare_twin import SpareTwinError
-from spare_twin.kinematics import plate_lowest_point_m as lowest_point_m
+from spare_twin.errors import SpareTwinError
+from spare_twin.object.kinematics import plate_lowest_point_m as lowest_point_m
 
 
 @dataclass(frozen=True)

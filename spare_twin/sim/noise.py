@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 
 @dataclass(frozen=True)
@@ -90,7 +90,7 @@ class DepthNoise:
         return dataclasses.asdict(self)
 
     @classmethod
-    def from_json_file(cls, path: str | Path) -> "DepthNoise":
+    def from_json_file(cls, path: str | Path) -> DepthNoise:
         from spare_twin.io import read_json
 
         d = read_json(path)
@@ -110,8 +110,8 @@ def load_noise(name: str, flag: str = "noise model") -> DepthNoise | None:
         return None
     p = Path(name) if name.endswith(".json") else RIGS_DIR / f"noise_{name}.json"
     if not p.is_file():
-        have = sorted(q.stem[len("noise_"):] for q in RIGS_DIR.glob("noise_*.json"))
-        raise SpareTwinError(f"{flag} {name}: no such noise model ({p}; have: {', '.join(have) or 'none'})")
+        have = sorted(q.stem[len("noise_") :] for q in RIGS_DIR.glob("noise_*.json"))
+        raise SpareTwinError(f"{flag} {name!r}: no such noise model ({p}; have: {', '.join(have) or 'none'})")
     return DepthNoise.from_json_file(p)
 
 
@@ -139,11 +139,20 @@ def _rows_stats(depths: list[np.ndarray], jump_rel: float, max_gap: int = 10):
             da, db = row[idx[:-1]], row[idx[1:]]
             is_edge = (gaps <= max_gap) & (np.abs(da - db) > jump_rel * np.minimum(da, db))
             edges_gap.append(gaps[is_edge])
-    return (np.concatenate(res_z), np.concatenate(res_r), np.concatenate(diffs_z), np.concatenate(diffs),
-            np.concatenate(edges_gap), iso, iso_den)
+    return (
+        np.concatenate(res_z),
+        np.concatenate(res_r),
+        np.concatenate(diffs_z),
+        np.concatenate(diffs),
+        np.concatenate(edges_gap),
+        iso,
+        iso_den,
+    )
 
 
-def fit_depth_noise(depths: list[np.ndarray], unit_m: float, sensor: str, jump_rel: float = 0.05) -> tuple[DepthNoise, dict]:
+def fit_depth_noise(
+    depths: list[np.ndarray], unit_m: float, sensor: str, jump_rel: float = 0.05
+) -> tuple[DepthNoise, dict]:
     """Fit the model to real depth frames (metres, 0 = none); returns the model and a fit report."""
     if not depths:
         raise SpareTwinError("fit_depth_noise: no depth frames")
@@ -169,11 +178,17 @@ def fit_depth_noise(depths: list[np.ndarray], unit_m: float, sensor: str, jump_r
     quant = float(np.median(steps / zs**2)) if (steps > unit_m * 1.5).any() else 0.0
     holes = gaps[gaps >= 1]
     model = DepthNoise(
-        sigma0_m=round(s0, 6), sigma2_per_m=round(s2, 6), unit_m=unit_m, quant_per_m=round(quant, 6),
-        edge_jump_rel=jump_rel, edge_hole_prob=round(float(len(holes) / max(len(gaps), 1)), 4),
-        edge_band_px=round(float(holes.mean()) if len(holes) else 1.0, 3), ref_width_px=int(depths[0].shape[1]),
+        sigma0_m=round(s0, 6),
+        sigma2_per_m=round(s2, 6),
+        unit_m=unit_m,
+        quant_per_m=round(quant, 6),
+        edge_jump_rel=jump_rel,
+        edge_hole_prob=round(float(len(holes) / max(len(gaps), 1)), 4),
+        edge_band_px=round(float(holes.mean()) if len(holes) else 1.0, 3),
+        ref_width_px=int(depths[0].shape[1]),
         dropout_prob=round(iso / max(iso_den, 1), 5),
-        min_range_m=round(float(np.percentile(z, 0.5)), 3), max_range_m=round(float(np.percentile(z, 99.5)), 3),
+        min_range_m=round(float(np.percentile(z, 0.5)), 3),
+        max_range_m=round(float(np.percentile(z, 99.5)), 3),
         sensor=sensor,
     )
     report = {

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 #: Folder of the shipped rig files (repository root / capture / rigs).
 RIGS_DIR = Path(__file__).resolve().parents[2] / "capture" / "rigs"
@@ -106,7 +106,7 @@ class Rig:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict, source: str = "rig") -> "Rig":
+    def from_dict(cls, d: dict, source: str = "rig") -> Rig:
         if not isinstance(d, dict):
             raise SpareTwinError(f"{source}: expected a JSON object")
         known = {f.name for f in dataclasses.fields(cls)}

@@ -50,8 +50,14 @@ class DomainRandomization:
 
 #: The sim-to-real preset: magnitudes of a hand-built rig calibrated with a checkerboard.
 SIM2REAL = DomainRandomization(
-    rig_rot_deg=1.0, rig_trans_m=0.005, focal_rel=0.02, principal_px=1.0,
-    lighting=True, color_jitter=0.12, table=True, clutter_max=3,
+    rig_rot_deg=1.0,
+    rig_trans_m=0.005,
+    focal_rel=0.02,
+    principal_px=1.0,
+    lighting=True,
+    color_jitter=0.12,
+    table=True,
+    clutter_max=3,
 )
 
 
@@ -113,10 +119,12 @@ def sample_scene(rig: Rig, spec: ChainSpec, dr: DomainRandomization, rng: np.ran
         # inside the camera ring (0.42 m), so boxes occlude and clutter but never intersect links.
         r, a = rng.uniform(0.26, 0.34), rng.uniform(0, 2 * math.pi)
         half = rng.uniform(0.008, 0.03, size=3).round(4)
-        clutter.append({
-            "half_extents_m": half.tolist(),
-            "position_m": [round(r * math.cos(a), 4), round(r * math.sin(a), 4), float(half[2])],
-            "rgba": rng.uniform(0.1, 0.95, size=3).round(4).tolist() + [1.0],
-            "yaw_rad": round(float(rng.uniform(0, math.pi)), 4),
-        })
+        clutter.append(
+            {
+                "half_extents_m": half.tolist(),
+                "position_m": [round(r * math.cos(a), 4), round(r * math.sin(a), 4), float(half[2])],
+                "rgba": rng.uniform(0.1, 0.95, size=3).round(4).tolist() + [1.0],
+                "yaw_rad": round(float(rng.uniform(0, math.pi)), 4),
+            }
+        )
     return Scene(poses, K, lighting, link_rgb, table, clutter)

@@ -17,8 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spare_twin import SpareTwinError
-from spare_twin.objects import ObjectFolder
+from spare_twin.errors import SpareTwinError
+from spare_twin.object.folder import ObjectFolder
 
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])  # flip y (down -> up) and z (forward -> backward)
 
@@ -116,7 +116,9 @@ class Twin:
         self.table_id: int | None = None
         if table:
             # A 1 m square slab whose top face is the table top, z = 0.
-            vis = p.createVisualShape(p.GEOM_BOX, halfExtents=[0.5, 0.5, 0.01], rgbaColor=list(table_rgba), physicsClientId=self.cid)
+            vis = p.createVisualShape(
+                p.GEOM_BOX, halfExtents=[0.5, 0.5, 0.01], rgbaColor=list(table_rgba), physicsClientId=self.cid
+            )
             self.table_id = p.createMultiBody(0, -1, vis, basePosition=[0, 0, -0.01], physicsClientId=self.cid)
 
     # -- scene -------------------------------------------------------------------------
@@ -155,7 +157,9 @@ class Twin:
     def add_box(self, half_extents_m, position_m, rgba, yaw_rad: float = 0.0) -> int:
         """A static box (table clutter); returns its body id."""
         p = self.p
-        vis = p.createVisualShape(p.GEOM_BOX, halfExtents=list(half_extents_m), rgbaColor=list(rgba), physicsClientId=self.cid)
+        vis = p.createVisualShape(
+            p.GEOM_BOX, halfExtents=list(half_extents_m), rgbaColor=list(rgba), physicsClientId=self.cid
+        )
         orn = p.getQuaternionFromEuler([0, 0, yaw_rad])
         b = p.createMultiBody(0, -1, vis, basePosition=list(position_m), baseOrientation=orn, physicsClientId=self.cid)
         self._extra.append(b)
@@ -255,7 +259,7 @@ class Twin:
                 pass
             self.cid = None
 
-    def __enter__(self) -> "Twin":
+    def __enter__(self) -> Twin:
         return self
 
     def __exit__(self, *exc) -> None:

@@ -188,7 +188,9 @@ def build_parts(spec: ChainSpec, circle_segments: int = CIRCLE_SEGMENTS) -> list
     shaft = pin_shaft_length_mm(p)
     for k in range(1, spec.n_links + 1):
         last = k == spec.n_links
-        parts.append(Part(f"link{k}", "link", k, moving_link(p, lengths[k], last, seg), _pose(R_LINK_PLATE, plate_offset)))
+        parts.append(
+            Part(f"link{k}", "link", k, moving_link(p, lengths[k], last, seg), _pose(R_LINK_PLATE, plate_offset))
+        )
         # The pin head's outer face is flush with the parent's -y face, one pitch behind this link.
         parts.append(Part(f"pin_joint{k}", "pin", k, pin(p, shaft, seg), _pose(R_LINK_PIN, (0.0, -pitch - t / 2, 0.0))))
     return parts

@@ -67,11 +67,17 @@ def summary_markdown(result: dict) -> str:
     ]
     fit = result.get("registration") or {}
     if fit.get("joint_angles_rad") is not None:
-        lines += ["", "Joint angles from articulated registration (deg): "
-                  + ", ".join(f"{np.degrees(a):.1f}" for a in fit["joint_angles_rad"])]
+        lines += [
+            "",
+            "Joint angles from articulated registration (deg): "
+            + ", ".join(f"{np.degrees(a):.1f}" for a in fit["joint_angles_rad"]),
+        ]
     if errs.get("joint_angles_deg") is not None:
-        lines += ["", "Their error against the recording's ground truth (deg): "
-                  + ", ".join(f"{a:.2f}" for a in errs["joint_angles_deg"])]
+        lines += [
+            "",
+            "Their error against the recording's ground truth (deg): "
+            + ", ".join(f"{a:.2f}" for a in errs["joint_angles_deg"]),
+        ]
     return "\n".join(lines) + "\n"
 
 
@@ -87,8 +93,12 @@ def _blueprint():
 
     return rrb.Blueprint(
         rrb.Vertical(
-            rrb.Horizontal(frames("real"), rrb.Spatial3DView(origin="world", name="real cloud + posed twin"), frames("sim"),
-                           column_shares=[1, 2, 1]),
+            rrb.Horizontal(
+                frames("real"),
+                rrb.Spatial3DView(origin="world", name="real cloud + posed twin"),
+                frames("sim"),
+                column_shares=[1, 2, 1],
+            ),
             rrb.Horizontal(
                 rrb.Spatial2DView(origin="real/network_input", name="real: network input (depth)"),
                 rrb.Spatial2DView(origin="sim/network_input", name="sim: network input (depth)"),
@@ -111,11 +121,17 @@ def log_comparison(rrd: str | Path, log: ComparisonLog, every: int = 1) -> None:
     stream = rr.RecordingStream("spare-twin-compare")
     stream.save(tmp, default_blueprint=_blueprint())
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-    stream.log("world/real_cloud", rr.Points3D(log.real_cloud, colors=(np.clip(log.real_cloud_rgb, 0, 1) * 255).astype(np.uint8),
-                                               radii=0.0012), static=True)
+    stream.log(
+        "world/real_cloud",
+        rr.Points3D(log.real_cloud, colors=(np.clip(log.real_cloud_rgb, 0, 1) * 255).astype(np.uint8), radii=0.0012),
+        static=True,
+    )
     for k, (vertices, triangles, rgb) in enumerate(log.twin_meshes):
-        stream.log(f"world/twin/link{k}", rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles,
-                                                     albedo_factor=[*rgb, 0.55]), static=True)
+        stream.log(
+            f"world/twin/link{k}",
+            rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles, albedo_factor=[*rgb, 0.55]),
+            static=True,
+        )
     for side, views in (("real", log.real_input), ("sim", log.sim_input)):
         stream.log(f"{side}/network_input", rr.DepthImage(tile(np.asarray(views, np.float32)), meter=1.0), static=True)
     colours = {"truth": [120, 120, 120], "sim": [60, 130, 230], "real": [230, 120, 40]}
@@ -124,8 +140,13 @@ def log_comparison(rrd: str | Path, log: ComparisonLog, every: int = 1) -> None:
         padded = np.zeros(7, np.float32)
         padded[: len(values)] = values
         # Grouped bars: link i's truth, sim and real side by side around x = i.
-        stream.log(f"lengths/{side}", rr.BarChart(padded, color=colours[side], abscissa=np.arange(7) + offset,
-                                                  widths=np.full(7, 0.25, np.float32)), static=True)
+        stream.log(
+            f"lengths/{side}",
+            rr.BarChart(
+                padded, color=colours[side], abscissa=np.arange(7) + offset, widths=np.full(7, 0.25, np.float32)
+            ),
+            static=True,
+        )
     stream.log("summary", rr.TextDocument(summary_markdown(log.result), media_type=rr.MediaType.MARKDOWN), static=True)
 
     n = min(log.real_rec.n_frames, log.sim_rec.n_frames)

@@ -1,12 +1,12 @@
 """The object folder: everything `spare-twin object` writes for one chain, and its reader.
 
-    object.json          the configuration (ChainSpec) plus the derived joint layout
-    link0_base.stl ...   one binary STL per printable part, millimetres, flat for printing
-    clearance_coupon.stl a test bar for choosing the pin clearance before printing the object
-    <name>.urdf          the URDF twin whose visuals and collisions are those STLs
-    print_report.json    per part: file, bounding box, volume, watertight, checks
-    ASSEMBLY.md          print settings and assembly steps for this object
-    preview.png          the assembled object at a random pose, rendered from the URDF
+object.json          the configuration (ChainSpec) plus the derived joint layout
+link0_base.stl ...   one binary STL per printable part, millimetres, flat for printing
+clearance_coupon.stl a test bar for choosing the pin clearance before printing the object
+<name>.urdf          the URDF twin whose visuals and collisions are those STLs
+print_report.json    per part: file, bounding box, volume, watertight, checks
+ASSEMBLY.md          print settings and assembly steps for this object
+preview.png          the assembled object at a random pose, rendered from the URDF
 """
 
 from __future__ import annotations
@@ -16,14 +16,20 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
-from spare_twin.cad import checks
-from spare_twin.cad.export import stl_bytes, to_trimesh
-from spare_twin.cad.parts import CIRCLE_SEGMENTS, COUPON_CLEARANCES_MM, build_parts, clearance_coupon, pin_shaft_length_mm
 from spare_twin.config import ChainSpec
+from spare_twin.errors import SpareTwinError
 from spare_twin.io import atomic_dir, encode_png, read_json, write_bytes_atomic, write_json_atomic
-from spare_twin.kinematics import joint_limits_rad, joint_origin, keepout_height_m
-from spare_twin.urdf import build_robot, joint_name, link_name, urdf_bytes
+from spare_twin.object import checks
+from spare_twin.object.kinematics import joint_limits_rad, joint_origin, keepout_height_m
+from spare_twin.object.parts import (
+    CIRCLE_SEGMENTS,
+    COUPON_CLEARANCES_MM,
+    build_parts,
+    clearance_coupon,
+    pin_shaft_length_mm,
+)
+from spare_twin.object.stl import stl_bytes, to_trimesh
+from spare_twin.object.urdf import build_robot, joint_name, link_name, urdf_bytes
 
 OBJECT_FORMAT = "spare-twin-object/1"
 
@@ -135,7 +141,7 @@ def build_object(spec: ChainSpec, out_dir: str | Path, preview: bool = True, pro
         write_bytes_atomic(tmp / "ASSEMBLY.md", assembly_md(spec, report).encode())
         if preview:
             step("rendering preview")
-            from spare_twin.preview import render_preview
+            from spare_twin.object.preview import render_preview
 
             rgb = render_preview(spec, tmp / f"{spec.name}.urdf", seed=spec.seed or 0)
             write_bytes_atomic(tmp / "preview.png", encode_png(rgb[:, :, ::-1].copy(), compression=6))

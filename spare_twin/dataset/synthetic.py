@@ -178,8 +178,12 @@ def make_sample(spec: SyntheticSpec, split: str, index: int) -> dict[str, np.nda
         imgs = [render(segs, colours, K, T)[0 if spec.input == "depth" else 1] for T in poses]
         angles = np.zeros(6, np.float32)
         angles[:n] = q
-        out.update(x=np.stack(imgs), K=np.repeat(K[None], len(poses), 0).astype(np.float32),
-                   T_world_camera=poses.astype(np.float32), joint_angles_rad=angles)
+        out.update(
+            x=np.stack(imgs),
+            K=np.repeat(K[None], len(poses), 0).astype(np.float32),
+            T_world_camera=poses.astype(np.float32),
+            joint_angles_rad=angles,
+        )
     else:
         cam = int(rng.integers(0, len(poses)))
         q0 = sample_angles(n, rng, lengths, spec.print_scale)
@@ -193,8 +197,12 @@ def make_sample(spec: SyntheticSpec, split: str, index: int) -> dict[str, np.nda
                 segs = chain_segments(lengths, q, spec.print_scale)
             angles[f, :n] = q
             imgs.append(render(segs, colours, K, poses[cam])[0 if spec.input == "depth" else 1])
-        out.update(x=np.stack(imgs), K=K[None].astype(np.float32), T_world_camera=poses[cam][None].astype(np.float32),
-                   joint_angles_rad=angles)
+        out.update(
+            x=np.stack(imgs),
+            K=K[None].astype(np.float32),
+            T_world_camera=poses[cam][None].astype(np.float32),
+            joint_angles_rad=angles,
+        )
     return out
 
 
@@ -224,7 +232,7 @@ class SyntheticDataset:
     def __init__(self, spec: SyntheticSpec, split: str, cache: bool = True):
         sizes = dict(spec.sizes)
         if split not in sizes:
-            from spare_twin import SpareTwinError
+            from spare_twin.errors import SpareTwinError
 
             raise SpareTwinError(f"synthetic data has no split {split!r} (has {', '.join(sizes)})")
         self.spec, self.split, self.n = spec, split, sizes[split]
@@ -248,7 +256,12 @@ class SyntheticDataset:
 
     @property
     def labels_n(self) -> np.ndarray:
-        return np.array([int(_rng(self.spec.seed, self.split, i).integers(self.spec.n_range[0], self.spec.n_range[1] + 1)) for i in range(self.n)])
+        return np.array(
+            [
+                int(_rng(self.spec.seed, self.split, i).integers(self.spec.n_range[0], self.spec.n_range[1] + 1))
+                for i in range(self.n)
+            ]
+        )
 
 
 import torch.utils.data as _tud  # noqa: E402  (torch only where the datasets are used)

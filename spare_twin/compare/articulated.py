@@ -12,7 +12,7 @@ joint angles these are found by
    point near the twin's surface, and the twin's surface near observed points), each also from its
    mirror image: a planar chain turned half round with every joint angle negated covers the same
    outline; only the side its 6.4 mm layers stack towards differs, and a fused cloud smears that;
-3. with the depth images themselves (`views`), render and compare (`spare_twin.depth_fit`): the
+3. with the depth images themselves (`views`), render and compare (`spare_twin.compare.depth_fit`): the
    candidate whose rendered depth agrees best is kept, its joints re-searched and polished on depth
    agreement, the cameras re-aligned onto the posed twin between polishes, and the chain fitted to
    the aligned frames' own points. Without views the lowest cloud cost wins.
@@ -26,10 +26,17 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from spare_twin import SpareTwinError
-from spare_twin.kinematics import (base_pose, forward_kinematics, joint_limits_rad, joint_origin, keepout_height_m,
-                                   param_bounds, rot_y)
-from spare_twin.objects import ObjectFolder
+from spare_twin.errors import SpareTwinError
+from spare_twin.object.folder import ObjectFolder
+from spare_twin.object.kinematics import (
+    base_pose,
+    forward_kinematics,
+    joint_limits_rad,
+    joint_origin,
+    keepout_height_m,
+    param_bounds,
+    rot_y,
+)
 
 #: Distances beyond this count as "not explained" (metres): robust to clutter and fusion noise.
 TRUNCATE_M = 0.01
@@ -96,7 +103,7 @@ def twin_link_meshes(obj: ObjectFolder) -> list:
     its visual STL files placed by their visual origins."""
     import trimesh
 
-    from spare_twin.urdf import load_urdf
+    from spare_twin.object.urdf import load_urdf
 
     links = {l.name: l for l in load_urdf(obj.urdf_path).robot.links}
     out = []
@@ -132,8 +139,9 @@ def _truncated(d: np.ndarray) -> np.ndarray:
     return np.minimum(d, TRUNCATE_M)
 
 
-def fit_articulated(obj: ObjectFolder, points_world: np.ndarray, config: FitConfig = FitConfig(),
-                    views: list | None = None) -> ArticulatedFit:
+def fit_articulated(
+    obj: ObjectFolder, points_world: np.ndarray, config: FitConfig = FitConfig(), views: list | None = None
+) -> ArticulatedFit:
     """Fit the twin to `points_world` (see the module doc); `views` (`depth_fit.DepthView`: depth
     images of the same scene, posed in the cloud's frame) settle the fit by render and compare."""
     spec = obj.spec
@@ -176,7 +184,7 @@ def fit_articulated(obj: ObjectFolder, points_world: np.ndarray, config: FitConf
         candidates.append([_two_sided_cost(spec, link_points, cloud, points, res.x), None, res.x])
     view_corrections = []
     if views:
-        from spare_twin.depth_fit import DepthScorer
+        from spare_twin.compare.depth_fit import DepthScorer
 
         with DepthScorer(obj, views, config.depth_stride) as scorer:
             for c in candidates:
@@ -242,7 +250,9 @@ def _chain_search(spec, link_points, limits, points, T_world_base, config: FitCo
         children = []
         for total, params, T_parent, unexplained in beam:
             target = unexplained if len(unexplained) >= 10 else points
-            world = _link_at_angles(link_points[k][: config.search_points_per_link], T_parent @ joint_origin(spec, k), grid)
+            world = _link_at_angles(
+                link_points[k][: config.search_points_per_link], T_parent @ joint_origin(spec, k), grid
+            )
             d = cKDTree(target).query(world.reshape(-1, 3))[0].reshape(len(grid), -1)
             cost = np.mean(_truncated(d) ** 2, axis=1)
             # The printed object cannot put a link through its foot: such angles are not candidates.
@@ -274,7 +284,8 @@ def _link_at_angles(p: np.ndarray, T_joint: np.ndarray, angles: np.ndarray) -> n
     """Link points (in the link frame) posed at every joint angle at once: (angles, points, 3)."""
     c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
     rotated = np.stack(
-        [c * p[:, 0] + s * p[:, 2], np.broadcast_to(p[:, 1], (len(angles), len(p))), -s * p[:, 0] + c * p[:, 2]], axis=-1
+        [c * p[:, 0] + s * p[:, 2], np.broadcast_to(p[:, 1], (len(angles), len(p))), -s * p[:, 0] + c * p[:, 2]],
+        axis=-1,
     )
     return rotated @ T_joint[:3, :3].T + T_joint[:3, 3]
 

@@ -2,7 +2,7 @@
 
 1. The real recording is registered (poses, TSDF fusion, the object on the table) unless it already is.
 2. Articulated registration fits the object's URDF twin to the fused real cloud: base pose on the
-   table and joint angles (`spare_twin.articulated`).
+   table and joint angles (`spare_twin.compare.articulated`).
 3. The twin, posed so, is rendered through the very cameras of the real recording: a simulated
    recording with the same intrinsics, poses and frame count, but no sensor noise.
 4. The same network runs on both recordings through the same path (`predict_recording`), the real
@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError, __version__
-from spare_twin.config import LABEL_SLOTS, COLORS
+from spare_twin import __version__
+from spare_twin.config import COLORS, LABEL_SLOTS
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,7 @@ class CompareConfig:
     def settings(self) -> dict:
         """Everything that shapes a comparison besides its inputs and model: a batch reuses a
         finished comparison only when these match."""
-        from spare_twin.articulated import FitConfig
+        from spare_twin.compare.articulated import FitConfig
 
         return {"compare": asdict(self), "fit": asdict(FitConfig()), "version": __version__}
 
@@ -57,10 +57,16 @@ def score(truth: dict, pred: dict) -> dict:
         return {"count_correct": n_pred == n_true, "E_L": None, "per_link_m": None}
     t, p = padded(truth["link_lengths_m"]), padded(pred["link_lengths_m"])
     e_l = float(length_errors(t[None], p[None], [n_true], [n_pred])[0])
-    return {"count_correct": bool(n_pred == n_true), "E_L": e_l, "per_link_m": [float(x) for x in (p - t)[: max(n_true, n_pred) + 1]]}
+    return {
+        "count_correct": bool(n_pred == n_true),
+        "E_L": e_l,
+        "per_link_m": [float(x) for x in (p - t)[: max(n_true, n_pred) + 1]],
+    }
 
 
-def render_twin_through(obj, joint_angles_rad, T_world_base: np.ndarray, real, out_dir: Path, cfg: CompareConfig) -> None:
+def render_twin_through(
+    obj, joint_angles_rad, T_world_base: np.ndarray, real, out_dir: Path, cfg: CompareConfig
+) -> None:
     """The posed twin seen by the real recording's cameras (frames, intrinsics, poses), no noise."""
     from tqdm import tqdm
 
@@ -74,14 +80,26 @@ def render_twin_through(obj, joint_angles_rad, T_world_base: np.ndarray, real, o
         poses[c.name] = per_frame
         cameras.append(Camera(c.name, c.width, c.height, c.K, None, "per_frame"))
     source = {"kind": "sim", "sensor_model": "pybullet-tinyrenderer", "twin_of": str(real.root)}
-    with Twin() as twin, RecordingWriter(out_dir, cameras, real.n_frames, real.fps, source,
-                                         object_config=obj.spec.to_dict(), rig=None,
-                                         timestamps_s=list(real.timestamps_s)) as rec:
+    with (
+        Twin() as twin,
+        RecordingWriter(
+            out_dir,
+            cameras,
+            real.n_frames,
+            real.fps,
+            source,
+            object_config=obj.spec.to_dict(),
+            rig=None,
+            timestamps_s=list(real.timestamps_s),
+        ) as rec,
+    ):
         twin.load(obj)
         twin.set_joints(joint_angles_rad)
         for f in tqdm(range(real.n_frames), desc="sim twin", unit="frame", file=sys.stderr, leave=False):
             for c in cameras:
-                frame = twin.render(poses[c.name][f], c.K, c.width, c.height, cfg.sim_near_m, cfg.sim_far_m, segmentation=True)
+                frame = twin.render(
+                    poses[c.name][f], c.K, c.width, c.height, cfg.sim_near_m, cfg.sim_far_m, segmentation=True
+                )
                 rec.add_frame(c.name, f, frame.rgb, frame.depth_m, frame.segmentation, T_world_camera=poses[c.name][f])
         n = obj.spec.n_links
         rec.set_ground_truth(
@@ -102,7 +120,7 @@ def aligned_camera_poses(obj, real, fit, T_world_object: np.ndarray) -> dict:
     twin (`depth_fit.DepthScorer.align_views`). Whole-frame registration leaves the cameras a few
     millimetres and a degree or two apart; the network's views, fused in its voxel grid, want them
     consistent with each other."""
-    from spare_twin.depth_fit import DepthScorer
+    from spare_twin.compare.depth_fit import DepthScorer
 
     keyed = _posed_depth_views(real, np.linalg.inv(T_world_object), real.n_frames)
     with DepthScorer(obj, [view for _, view in keyed]) as scorer:
@@ -112,7 +130,7 @@ def aligned_camera_poses(obj, real, fit, T_world_object: np.ndarray) -> dict:
 
 
 def _posed_depth_views(real, T_object_world: np.ndarray, count: int) -> list:
-    from spare_twin.depth_fit import DepthView
+    from spare_twin.compare.depth_fit import DepthView
 
     out = []
     for c in real.cameras:
@@ -125,10 +143,10 @@ def _posed_depth_views(real, T_object_world: np.ndarray, count: int) -> list:
 
 
 def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: CompareConfig = CompareConfig()) -> dict:
-    from spare_twin.articulated import fit_articulated
     from spare_twin.capture.pipeline import fuse_recording, register_recording
+    from spare_twin.compare.articulated import fit_articulated
     from spare_twin.nets.predict import predict_recording
-    from spare_twin.objects import load_object
+    from spare_twin.object.folder import load_object
     from spare_twin.recording import Recording
 
     obj = load_object(object_dir)
@@ -153,8 +171,14 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
     # views are placed by the registered base pose. `real_estimated_frame` is what `predict` alone
     # makes of the recording, with its own frame estimate and yaw hypotheses.
     sim_pred = predict_recording(sim_dir, model, progress=False, return_input=rrd is not None)
-    real_pred = predict_recording(real.root, model, progress=False, return_input=rrd is not None, T_world_base=T_world_base,
-                                  camera_poses=aligned_camera_poses(obj, real, fit, T_world_object))
+    real_pred = predict_recording(
+        real.root,
+        model,
+        progress=False,
+        return_input=rrd is not None,
+        T_world_base=T_world_base,
+        camera_poses=aligned_camera_poses(obj, real, fit, T_world_object),
+    )
     own_pred = predict_recording(real.root, model, progress=False)
     truth = {"n_links": obj.spec.n_links, "link_lengths_m": list(obj.spec.link_lengths_m)}
     gt = real.ground_truth()
@@ -174,8 +198,12 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
             "depth_error_m": fit.depth_error_m,
             "camera_corrections_mm_deg": [list(c) for c in fit.view_corrections],
         },
-        "errors": {"sim": score(truth, sim_pred), "real": score(truth, real_pred),
-                   "real_estimated_frame": score(truth, own_pred), "joint_angles_deg": None},
+        "errors": {
+            "sim": score(truth, sim_pred),
+            "real": score(truth, real_pred),
+            "real_estimated_frame": score(truth, own_pred),
+            "joint_angles_deg": None,
+        },
         "sim_recording": str(sim_dir),
         "model": real_pred.get("model"),
         "settings": cfg.settings(),
@@ -190,9 +218,9 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
 
 
 def _write_rrd(rrd, result, obj, cloud_obj, colors, fit, real, sim, sim_pred, real_pred, cfg) -> None:
-    from spare_twin.articulated import twin_link_meshes
-    from spare_twin.kinematics import forward_kinematics
-    from spare_twin.viz import ComparisonLog, log_comparison
+    from spare_twin.compare.articulated import twin_link_meshes
+    from spare_twin.compare.rerun_log import ComparisonLog, log_comparison
+    from spare_twin.object.kinematics import forward_kinematics
 
     # Everything in the twin's base frame: the cloud moves by the fitted base pose.
     T_base_object = np.linalg.inv(fit.T_world_base)
@@ -201,27 +229,43 @@ def _write_rrd(rrd, result, obj, cloud_obj, colors, fit, real, sim, sim_pred, re
     meshes = []
     for k, mesh in enumerate(twin_link_meshes(obj)):
         mesh.apply_transform(poses[k])
-        meshes.append((np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), COLORS[obj.spec.colors[k]]))
-    log_comparison(rrd, ComparisonLog(
-        result=result, real_cloud=cloud, real_cloud_rgb=colors, twin_meshes=meshes,
-        real_input=real_pred["network_input"], sim_input=sim_pred["network_input"],
-        real_rec=real, sim_rec=sim,
-    ), every=cfg.rrd_every)
+        meshes.append(
+            (np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), COLORS[obj.spec.colors[k]])
+        )
+    log_comparison(
+        rrd,
+        ComparisonLog(
+            result=result,
+            real_cloud=cloud,
+            real_cloud_rgb=colors,
+            twin_meshes=meshes,
+            real_input=real_pred["network_input"],
+            sim_input=sim_pred["network_input"],
+            real_rec=real,
+            sim_rec=sim,
+        ),
+        every=cfg.rrd_every,
+    )
 
 
-def format_summary(result: dict) -> str:
-    lines = []
-    names = {"truth": "truth", "sim": "sim", "real": "real", "real_estimated_frame": "real, predict's own frame"}
-    for side, name in names.items():
-        d = result.get(side)
-        if d is None:
-            continue
-        lengths = ", ".join(f"{x:.3f}" for x in (d.get("link_lengths_m") or []))
-        extra = ""
-        if side != "truth":
-            e = result["errors"][side]
-            extra = f"  count {'right' if e['count_correct'] else 'WRONG'}, E_L {e['E_L']:.4f}" if e["E_L"] is not None else ""
-        lines.append(f"  {name:<26s} n = {d['n_links']}  lengths [{lengths}]{extra}")
+def summary_row(name: str, prediction: dict, errors: dict | None = None) -> str:
+    """One line of a sim-vs-real summary: count, lengths (paper units) and, when scored, right/WRONG and E_L."""
+    lengths = ", ".join(f"{x:.3f}" for x in (prediction.get("link_lengths_m") or []))
+    tail = ""
+    if errors is not None and errors.get("E_L") is not None:
+        tail = f"  count {'right' if errors['count_correct'] else 'WRONG'}, E_L {errors['E_L']:.4f}"
+    return f"  {name:<26s} n = {prediction['n_links']}  lengths [{lengths}]{tail}"
+
+
+SUMMARY_SIDES = {"truth": "truth", "sim": "sim", "real": "real", "real_estimated_frame": "real, predict's own frame"}
+
+
+def format_summary(result: dict, names: dict[str, str] = SUMMARY_SIDES) -> str:
+    lines = [
+        summary_row(name, result[side], None if side == "truth" else result["errors"][side])
+        for side, name in names.items()
+        if result.get(side) is not None
+    ]
     ja = result["errors"].get("joint_angles_deg")
     if ja is not None:
         lines.append("  joint angles from registration: error " + ", ".join(f"{a:.1f}" for a in ja) + " deg")

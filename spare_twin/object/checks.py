@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from spare_twin.cad.parts import Part
 from spare_twin.config import ChainSpec, counterbore_depth_mm, counterbore_diameter_mm
+from spare_twin.object.parts import Part
 
 
 def hole_radius_mm(mesh: trimesh.Trimesh, center_xy, z_mm: float) -> float:

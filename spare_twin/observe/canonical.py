@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 #: The twin's table (spare_twin.sim.twin.Twin): a 1 m square top at z = 0 centred on the base.
 TABLE_HALF_SIZE_M = 0.5
@@ -126,12 +126,18 @@ def resolve_rig(rig):
         return rig
     if isinstance(rig, dict):
         return Rig.from_dict(rig, source="rig")
-    from spare_twin.nets.synthetic import RIG_NAME
+    from spare_twin.dataset.synthetic import RIG_NAME
 
     if rig == RIG_NAME:
         # nets.synthetic.rig() as a Rig: ring 0.36 m, 0.18 m high, aim (0, 0, 0.12), f = 125 px at 96 x 128
-        return Rig(name=RIG_NAME, radius_m=0.36, heights_m=(0.18,), look_at_m=(0.0, 0.0, 0.12), azimuth0_deg=22.5,
-                   fov_y_deg=math.degrees(2 * math.atan(48.0 / 125.0)))
+        return Rig(
+            name=RIG_NAME,
+            radius_m=0.36,
+            heights_m=(0.18,),
+            look_at_m=(0.0, 0.0, 0.12),
+            azimuth0_deg=22.5,
+            fov_y_deg=math.degrees(2 * math.atan(48.0 / 125.0)),
+        )
     return load_rig(rig)
 
 
@@ -162,7 +168,9 @@ def registered(rec, workdir: str | Path, progress: bool = True):
         register_recording(copy, find="require", progress=progress)
     except SpareTwinError as exc:
         msg = str(exc).replace(str(copy / "fused.ply"), str(rec.root)).replace(str(copy), str(rec.root))
-        raise SpareTwinError(f"{msg} (registered in a temporary copy; `spare-twin capture register` shows more)") from None
+        raise SpareTwinError(
+            f"{msg} (registered in a temporary copy; `spare-twin capture register` shows more)"
+        ) from None
     return Recording.open(copy)
 
 
@@ -202,8 +210,13 @@ def object_frame(rec, cfg: CanonicalConfig = CanonicalConfig(), frame: int | Non
     scene = scene_w @ T_ow[:3, :3].T + T_ow[:3, 3]
     lo, hi = cfg.foot_band_m
     foot = (scene[:, 2] > lo) & (scene[:, 2] < hi) & (np.abs(scene[:, :2]) < cfg.foot_radius_m).all(axis=1)
-    return ObjectFrame(np.concatenate([pts, scene[foot]]), np.concatenate([cols, scene_c[foot]]), T_wo,
-                       _yaws(cfg.yaw_hypotheses), "fused")
+    return ObjectFrame(
+        np.concatenate([pts, scene[foot]]),
+        np.concatenate([cols, scene_c[foot]]),
+        T_wo,
+        _yaws(cfg.yaw_hypotheses),
+        "fused",
+    )
 
 
 def layer_yaw_rad(points: np.ndarray, cfg: CanonicalConfig = CanonicalConfig(), above_m: float = 0.02) -> float:
@@ -241,7 +254,11 @@ def _sim_object(rec, cfg: CanonicalConfig, frame: int) -> ObjectFrame:
         K = cam.K
         pc = np.stack([(u - K[0, 2]) * z / K[0, 0], (v - K[1, 2]) * z / K[1, 1], z], 1)
         pw = pc @ T[:3, :3].T + T[:3, 3]
-        keep = seg[v, u] > 0 if seg is not None else (pw[:, 2] > cfg.sim_min_height_m) & (np.linalg.norm(pw[:, :2], axis=1) < 0.3)
+        keep = (
+            seg[v, u] > 0
+            if seg is not None
+            else (pw[:, 2] > cfg.sim_min_height_m) & (np.linalg.norm(pw[:, :2], axis=1) < 0.3)
+        )
         pts.append(pw[keep])
         cols.append(rec.color(cam.name, frame)[v[keep], u[keep]] / 255.0)
     pts, cols = np.concatenate(pts), np.concatenate(cols)
@@ -275,8 +292,16 @@ def table_view(K: np.ndarray, T_world_camera: np.ndarray, height: int, width: in
     return np.where(hit, s, 0.0).astype(np.float32)
 
 
-def splat(points: np.ndarray, grey: np.ndarray, K: np.ndarray, T_world_camera: np.ndarray, height: int, width: int,
-          spacing_m: float, cfg: CanonicalConfig = CanonicalConfig()) -> tuple[np.ndarray, np.ndarray]:
+def splat(
+    points: np.ndarray,
+    grey: np.ndarray,
+    K: np.ndarray,
+    T_world_camera: np.ndarray,
+    height: int,
+    width: int,
+    spacing_m: float,
+    cfg: CanonicalConfig = CanonicalConfig(),
+) -> tuple[np.ndarray, np.ndarray]:
     """z-buffered disc splats: (depth float32 (H, W), 0 = none; grey float32 (H, W))."""
     T_cw = np.linalg.inv(T_world_camera)
     pc = points @ T_cw[:3, :3].T + T_cw[:3, 3]
@@ -328,8 +353,14 @@ def _fill_small_holes(depth: np.ndarray, grey: np.ndarray, min_neighbours: int) 
     return depth, grey
 
 
-def render_views(obj: ObjectFrame, K: np.ndarray, T_world_camera: np.ndarray, height: int, width: int,
-                 cfg: CanonicalConfig = CanonicalConfig()) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def render_views(
+    obj: ObjectFrame,
+    K: np.ndarray,
+    T_world_camera: np.ndarray,
+    height: int,
+    width: int,
+    cfg: CanonicalConfig = CanonicalConfig(),
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(depth, grey, object_mask), each (Y, V, H, W): the object over the table per yaw hypothesis."""
     Y, V = len(obj.yaws_rad), len(T_world_camera)
     grey_pts = obj.colors @ np.array([0.299, 0.587, 0.114])
@@ -351,8 +382,14 @@ def render_views(obj: ObjectFrame, K: np.ndarray, T_world_camera: np.ndarray, he
 
 
 # -- the entry point -------------------------------------------------------------------------
-def to_rig_views(rec, rig, frame: int | None = None, cfg: CanonicalConfig = CanonicalConfig(),
-                 workdir: str | Path | None = None, progress: bool = True) -> CanonicalViews:
+def to_rig_views(
+    rec,
+    rig,
+    frame: int | None = None,
+    cfg: CanonicalConfig = CanonicalConfig(),
+    workdir: str | Path | None = None,
+    progress: bool = True,
+) -> CanonicalViews:
     """The training rig's views of `rec` at the rig's network resolution (see the module doc).
 
     rig: a Rig, rig dict, rig name or the synthetic ring's name. frame: the time step for the no-op and
@@ -373,7 +410,11 @@ def to_rig_views(rec, rig, frame: int | None = None, cfg: CanonicalConfig = Cano
         raise SpareTwinError(f"--frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
     if rec.rig == rig.name and len(rec.cameras) == rig.n_cameras:
         return _own_views(rec, rig, frame)
-    if rec.meta.get("registration") or rec.source.get("kind") == "sim" and all(c.poses != "unknown" for c in rec.cameras):
+    if (
+        rec.meta.get("registration")
+        or rec.source.get("kind") == "sim"
+        and all(c.poses != "unknown" for c in rec.cameras)
+    ):
         obj = object_frame(rec, cfg, frame)
     else:
         with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -392,8 +433,13 @@ def _own_views(rec, rig, frame: int) -> CanonicalViews:
     depth, grey, mask, Ks, Ts = [], [], [], [], []
     for cam in rec.cameras:
         d, K = fit_view(rec.depth_m(cam.name, frame), cam.K, H, W, nearest=True)
-        g, _ = fit_view(cv2.cvtColor(rec.color(cam.name, frame), cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0,
-                        cam.K, H, W, nearest=False)
+        g, _ = fit_view(
+            cv2.cvtColor(rec.color(cam.name, frame), cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0,
+            cam.K,
+            H,
+            W,
+            nearest=False,
+        )
         seg = rec.segmentation(cam.name, frame)
         m = fit_view(seg, cam.K, H, W, nearest=True)[0] > 0 if seg is not None else np.zeros((H, W), bool)
         depth.append(d)
@@ -401,5 +447,12 @@ def _own_views(rec, rig, frame: int) -> CanonicalViews:
         mask.append(m)
         Ks.append(K)
         Ts.append(rec.T_world_camera(cam.name, frame))
-    return CanonicalViews(np.stack(depth)[None].astype(np.float32), np.stack(grey)[None].astype(np.float32),
-                          np.stack(mask)[None], np.stack(Ks), np.stack(Ts), (0.0,), "rig")
+    return CanonicalViews(
+        np.stack(depth)[None].astype(np.float32),
+        np.stack(grey)[None].astype(np.float32),
+        np.stack(mask)[None],
+        np.stack(Ks),
+        np.stack(Ts),
+        (0.0,),
+        "rig",
+    )

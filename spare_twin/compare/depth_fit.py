@@ -24,8 +24,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from spare_twin.capture.frames import backproject, rotation_error_deg
-from spare_twin.kinematics import base_pose, param_bounds
-from spare_twin.objects import ObjectFolder
+from spare_twin.object.folder import ObjectFolder
+from spare_twin.object.kinematics import base_pose, param_bounds
 
 #: Depth disagreements beyond this count as this much (metres): a hole or a stray reading is one bad pixel.
 DEPTH_TRUNCATE_M = 0.02
@@ -96,7 +96,9 @@ class DepthScorer:
         e = np.concatenate(errors)
         return float(e.mean()) if len(e) else float("inf")
 
-    def refine_joints(self, params: np.ndarray, limits: np.ndarray, coarse_deg: float, fine_deg: float) -> tuple[np.ndarray, float]:
+    def refine_joints(
+        self, params: np.ndarray, limits: np.ndarray, coarse_deg: float, fine_deg: float
+    ) -> tuple[np.ndarray, float]:
         """Coordinate search, base outwards: each joint angle over its whole range at `coarse_deg`,
         then +-coarse_deg around the best at `fine_deg`, the others held."""
         params = np.array(params, dtype=np.float64)
@@ -116,7 +118,9 @@ class DepthScorer:
                         best, params = e, trial
         return params, best
 
-    def polish(self, params: np.ndarray, limits: np.ndarray, steps_deg=(2.0, 1.0, 0.5, 0.25)) -> tuple[np.ndarray, float]:
+    def polish(
+        self, params: np.ndarray, limits: np.ndarray, steps_deg=(2.0, 1.0, 0.5, 0.25)
+    ) -> tuple[np.ndarray, float]:
         """Pattern search: at each step size (degrees for yaw and joints, as many millimetres for
         the base position) try +-step on every parameter, on every neighbouring joint pair in
         opposite directions and on every three neighbouring joints as (+1, -2, +1) (a middle link
@@ -164,7 +168,9 @@ class DepthScorer:
         for v in self.views:
             frame = self.render(params, v)
             twin_points = _to_cloud(backproject(frame.depth_m, v.K, frame.segmentation > 0), v.T_cloud_camera)
-            target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(twin_points)).voxel_down_sample(ALIGN_VOXEL_M * 0.75)
+            target = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(twin_points)).voxel_down_sample(
+                ALIGN_VOXEL_M * 0.75
+            )
             target.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=ALIGN_VOXEL_M * 2.5, max_nn=30))
             target.orient_normals_towards_camera_location(v.T_cloud_camera[:3, 3])
             target += table
@@ -173,8 +179,14 @@ class DepthScorer:
             source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(observed)).voxel_down_sample(ALIGN_VOXEL_M)
             T, fitness = np.eye(4), 0.0
             for d in ALIGN_DISTANCES_M:
-                r = reg.registration_icp(source, target, d, T, reg.TransformationEstimationPointToPlane(),
-                                         reg.ICPConvergenceCriteria(1e-7, 1e-7, 50))
+                r = reg.registration_icp(
+                    source,
+                    target,
+                    d,
+                    T,
+                    reg.TransformationEstimationPointToPlane(),
+                    reg.ICPConvergenceCriteria(1e-7, 1e-7, 50),
+                )
                 T, fitness = np.asarray(r.transformation), float(r.fitness)
             shift_m, turn_deg = float(np.linalg.norm(T[:3, 3])), rotation_error_deg(T[:3, :3])
             if fitness < ALIGN_MIN_FITNESS or shift_m > ALIGN_MAX_SHIFT_M or turn_deg > ALIGN_MAX_TURN_DEG:
@@ -189,7 +201,9 @@ class DepthScorer:
         at full resolution and its current pose (at most `max_points`, a seeded subset)."""
         clouds = [_to_cloud(backproject(v.depth_m, v.K), v.T_cloud_camera) for v in self.views]
         points = np.vstack(clouds) if clouds else np.zeros((0, 3))
-        points = points[(points[:, 2] > OBJECT_HEIGHT_M) & (np.linalg.norm(points[:, :2] - centre_xy, axis=1) < radius_m)]
+        points = points[
+            (points[:, 2] > OBJECT_HEIGHT_M) & (np.linalg.norm(points[:, :2] - centre_xy, axis=1) < radius_m)
+        ]
         if len(points) > max_points:
             points = points[np.random.default_rng(seed).choice(len(points), max_points, replace=False)]
         return points
@@ -197,7 +211,7 @@ class DepthScorer:
     def close(self) -> None:
         self.twin.close()
 
-    def __enter__(self) -> "DepthScorer":
+    def __enter__(self) -> DepthScorer:
         return self
 
     def __exit__(self, *exc) -> None:

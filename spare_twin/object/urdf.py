@@ -8,9 +8,9 @@ import numpy as np
 import trimesh
 import yourdfpy
 
-from spare_twin.cad.parts import Part
 from spare_twin.config import COLORS, ChainSpec
-from spare_twin.kinematics import JOINT_AXIS, joint_limits_rad, joint_origin
+from spare_twin.object.kinematics import JOINT_AXIS, joint_limits_rad, joint_origin
+from spare_twin.object.parts import Part
 
 MM = 1e-3
 
@@ -52,8 +52,13 @@ def link_inertial(spec: ChainSpec, parts: list[Part], meshes: dict[str, trimesh.
     return yourdfpy.Inertial(origin=origin, mass=float(mass), inertia=inertia)
 
 
-def build_robot(spec: ChainSpec, parts: list[Part], meshes: dict[str, trimesh.Trimesh], files: dict[str, str]) -> yourdfpy.Robot:
-    materials = [yourdfpy.Material(name=c, color=yourdfpy.Color(rgba=np.array([*COLORS[c], 1.0]))) for c in sorted(set(spec.colors))]
+def build_robot(
+    spec: ChainSpec, parts: list[Part], meshes: dict[str, trimesh.Trimesh], files: dict[str, str]
+) -> yourdfpy.Robot:
+    materials = [
+        yourdfpy.Material(name=c, color=yourdfpy.Color(rgba=np.array([*COLORS[c], 1.0])))
+        for c in sorted(set(spec.colors))
+    ]
     links = []
     for k in range(spec.n_links + 1):
         own = [p for p in parts if p.link == k]
@@ -66,7 +71,11 @@ def build_robot(spec: ChainSpec, parts: list[Part], meshes: dict[str, trimesh.Tr
             material = yourdfpy.Material(name=spec.colors[k])
             visuals.append(yourdfpy.Visual(name=part.name, origin=origin, geometry=geometry, material=material))
             collisions.append(yourdfpy.Collision(name=part.name, origin=origin, geometry=geometry))
-        links.append(yourdfpy.Link(name=link_name(k), inertial=link_inertial(spec, own, meshes), visuals=visuals, collisions=collisions))
+        links.append(
+            yourdfpy.Link(
+                name=link_name(k), inertial=link_inertial(spec, own, meshes), visuals=visuals, collisions=collisions
+            )
+        )
     limits = joint_limits_rad(spec)
     joints = [
         yourdfpy.Joint(
@@ -76,7 +85,9 @@ def build_robot(spec: ChainSpec, parts: list[Part], meshes: dict[str, trimesh.Tr
             child=link_name(k),
             origin=joint_origin(spec, k),
             axis=JOINT_AXIS.copy(),
-            limit=yourdfpy.Limit(effort=0.5, velocity=3.0, lower=float(limits[k - 1, 0]), upper=float(limits[k - 1, 1])),
+            limit=yourdfpy.Limit(
+                effort=0.5, velocity=3.0, lower=float(limits[k - 1, 0]), upper=float(limits[k - 1, 1])
+            ),
             dynamics=yourdfpy.Dynamics(damping=0.001, friction=0.0),
         )
         for k in range(1, spec.n_links + 1)

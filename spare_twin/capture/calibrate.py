@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 
 def calibrate_recording(root: str | Path, spec, frame: int | None = None, use_depth: bool = True) -> dict:
@@ -15,7 +15,7 @@ def calibrate_recording(root: str | Path, spec, frame: int | None = None, use_de
     Cameras with per-frame poses (a moving camera) are left alone. With `frame` None, the frame with
     the most detected corners (of up to 30 spread over the recording) is used.
     """
-    from spare_twin.capture.calibration import board_pose, detect_board, refine_with_depth
+    from spare_twin.capture.board import board_pose, detect_board, refine_with_depth
     from spare_twin.capture.store import update_recording
     from spare_twin.recording import Recording
 
@@ -28,7 +28,11 @@ def calibrate_recording(root: str | Path, spec, frame: int | None = None, use_de
         if c.poses == "per_frame":
             cams.append(c.to_dict())
             continue
-        candidates = [frame] if frame is not None else sorted(set(np.linspace(0, rec.n_frames - 1, min(30, rec.n_frames)).astype(int)))
+        candidates = (
+            [frame]
+            if frame is not None
+            else sorted(set(np.linspace(0, rec.n_frames - 1, min(30, rec.n_frames)).astype(int)))
+        )
         best = max(candidates, key=lambda f: len(detect_board(rec.color(c.name, f), spec)[1]))
         src = str(rec.path(c.name, "color", best))
         pose = board_pose(rec.color(c.name, best), c.K, spec, source=src)
@@ -36,15 +40,30 @@ def calibrate_recording(root: str | Path, spec, frame: int | None = None, use_de
             pose = refine_with_depth(pose, rec.depth_m(c.name, best), c.K, spec)
         T = pose.T_world_camera
         cams.append({**c.to_dict(), "T_world_camera": T.tolist(), "poses": "fixed"})
-        results.append({"name": c.name, "frame": int(best), "corners": pose.corners,
-                        "reprojection_px": round(pose.reprojection_px, 4), "depth": pose.depth,
-                        "T_world_camera": T.tolist()})
+        results.append(
+            {
+                "name": c.name,
+                "frame": int(best),
+                "corners": pose.corners,
+                "reprojection_px": round(pose.reprojection_px, 4),
+                "depth": pose.depth,
+                "T_world_camera": T.tolist(),
+            }
+        )
     if not results:
         raise SpareTwinError(f"{rec.root}: every camera has per-frame poses; nothing to calibrate")
     meta = dict(rec.meta)
     meta["cameras"] = cams
-    meta["calibration"] = {"board": {"squares_x": spec.squares_x, "squares_y": spec.squares_y, "square_m": spec.square_m,
-                                     "marker_m": spec.marker_m, "dictionary": spec.dictionary},
-                           "world": "ChArUco board on the table: z up, table z = 0", "cameras": results}
+    meta["calibration"] = {
+        "board": {
+            "squares_x": spec.squares_x,
+            "squares_y": spec.squares_y,
+            "square_m": spec.square_m,
+            "marker_m": spec.marker_m,
+            "dictionary": spec.dictionary,
+        },
+        "world": "ChArUco board on the table: z up, table z = 0",
+        "cameras": results,
+    }
     update_recording(rec.root, meta, {})
     return {"recording": str(rec.root), "cameras": results}

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin import SpareTwinError
+from spare_twin.errors import SpareTwinError
 
 T_WORLD_BOARD = np.diag([1.0, -1.0, -1.0, 1.0])
 MM_PER_INCH = 25.4
@@ -67,7 +67,7 @@ class BoardSpec:
         return self.cv_board().generateImage((w, h), marginSize=0, borderBits=1)
 
     @classmethod
-    def load(cls, path: str | Path) -> "BoardSpec":
+    def load(cls, path: str | Path) -> BoardSpec:
         from spare_twin.io import read_json
 
         d = read_json(path)
@@ -87,15 +87,25 @@ def board_page(spec: BoardSpec) -> np.ndarray:
     board = spec.board_image(px_per_mm * 1000)
     bh, bw = board.shape
     y0, x0 = (H - bh) // 2 - int(4 * px_per_mm), (W - bw) // 2
-    page[y0:y0 + bh, x0:x0 + bw] = board
+    page[y0 : y0 + bh, x0 : x0 + bw] = board
     # 100 mm scale bar under the board: measure it to check the print was not scaled
     yb = y0 + bh + int(6 * px_per_mm)
     xb = x0
-    page[yb:yb + int(1.5 * px_per_mm), xb:xb + int(round(100 * px_per_mm))] = 0
-    caption = (f"ChArUco {spec.squares_x}x{spec.squares_y}  squares {spec.square_m * 1000:g} mm  markers "
-               f"{spec.marker_m * 1000:g} mm  {spec.dictionary}  -  print at 100 %: the bar is 100 mm")
-    cv2.putText(page, caption, (xb, yb + int(7 * px_per_mm)), cv2.FONT_HERSHEY_SIMPLEX, 0.09 * px_per_mm, 0,
-                max(1, int(0.25 * px_per_mm)), cv2.LINE_AA)
+    page[yb : yb + int(1.5 * px_per_mm), xb : xb + int(round(100 * px_per_mm))] = 0
+    caption = (
+        f"ChArUco {spec.squares_x}x{spec.squares_y}  squares {spec.square_m * 1000:g} mm  markers "
+        f"{spec.marker_m * 1000:g} mm  {spec.dictionary}  -  print at 100 %: the bar is 100 mm"
+    )
+    cv2.putText(
+        page,
+        caption,
+        (xb, yb + int(7 * px_per_mm)),
+        cv2.FONT_HERSHEY_SIMPLEX,
+        0.09 * px_per_mm,
+        0,
+        max(1, int(0.25 * px_per_mm)),
+        cv2.LINE_AA,
+    )
     return page
 
 
@@ -115,9 +125,12 @@ def write_board(spec: BoardSpec, out_dir: str | Path) -> dict[str, Path]:
         page.save(buf, format=ext.upper(), **kw)
         paths[ext] = out_dir / f"board.{ext}"
         write_bytes_atomic(paths[ext], buf.getvalue())
-    desc = asdict(spec) | {"size_m": list(spec.size_m), "page": "A4 landscape",
-                           "frame": "origin top-left corner, x along rows, y down, z into the board; "
-                                    "world = board on the table: T_world_board = diag(1, -1, -1)"}
+    desc = asdict(spec) | {
+        "size_m": list(spec.size_m),
+        "page": "A4 landscape",
+        "frame": "origin top-left corner, x along rows, y down, z into the board; "
+        "world = board on the table: T_world_board = diag(1, -1, -1)",
+    }
     paths["json"] = out_dir / "board.json"
     write_bytes_atomic(paths["json"], (json.dumps(desc, indent=2) + "\n").encode())
     return paths
@@ -148,8 +161,14 @@ def detect_board(image: np.ndarray, spec: BoardSpec) -> tuple[np.ndarray, np.nda
     return corners.reshape(-1, 2), ids.reshape(-1)
 
 
-def board_pose(image: np.ndarray, K: np.ndarray, spec: BoardSpec, source: str = "image",
-               dist: np.ndarray | None = None, min_corners: int = 6) -> BoardPose:
+def board_pose(
+    image: np.ndarray,
+    K: np.ndarray,
+    spec: BoardSpec,
+    source: str = "image",
+    dist: np.ndarray | None = None,
+    min_corners: int = 6,
+) -> BoardPose:
     """Board pose in the camera from one colour image (one-line error naming `source` if not found)."""
     import cv2
 
@@ -172,8 +191,9 @@ def board_pose(image: np.ndarray, K: np.ndarray, spec: BoardSpec, source: str = 
     return BoardPose(T, len(ids), rms)
 
 
-def refine_with_depth(pose: BoardPose, depth_m: np.ndarray, K: np.ndarray, spec: BoardSpec,
-                      inset_m: float = 0.005, min_points: int = 200) -> BoardPose:
+def refine_with_depth(
+    pose: BoardPose, depth_m: np.ndarray, K: np.ndarray, spec: BoardSpec, inset_m: float = 0.005, min_points: int = 200
+) -> BoardPose:
     """Replace the board plane's tilt and distance by the plane fitted to the depth inside the board.
 
     Pixels within the board outline (shrunk by `inset_m`) are back-projected; a least-squares plane
@@ -185,7 +205,9 @@ def refine_with_depth(pose: BoardPose, depth_m: np.ndarray, K: np.ndarray, spec:
 
     T = pose.T_camera_board
     w, h = spec.size_m
-    outline = np.array([[inset_m, inset_m, 0], [w - inset_m, inset_m, 0], [w - inset_m, h - inset_m, 0], [inset_m, h - inset_m, 0]])
+    outline = np.array(
+        [[inset_m, inset_m, 0], [w - inset_m, inset_m, 0], [w - inset_m, h - inset_m, 0], [inset_m, h - inset_m, 0]]
+    )
     cam = (T[:3, :3] @ outline.T).T + T[:3, 3]
     uv = (K @ cam.T).T
     uv = uv[:, :2] / uv[:, 2:3]
@@ -215,13 +237,18 @@ def refine_with_depth(pose: BoardPose, depth_m: np.ndarray, K: np.ndarray, spec:
     Tn = np.eye(4)
     Tn[:3, :3] = Rc @ T[:3, :3]
     Tn[:3, 3] = new_centre - Tn[:3, :3] @ centre_b
-    info = {"points": int(keep.sum()), "plane_residual_mm": round(1000 * float(np.std(r[keep])), 3),
-            "shift_mm": round(1000 * shift, 3), "tilt_change_deg": round(float(np.degrees(angle)), 4)}
+    info = {
+        "points": int(keep.sum()),
+        "plane_residual_mm": round(1000 * float(np.std(r[keep])), 3),
+        "shift_mm": round(1000 * shift, 3),
+        "tilt_change_deg": round(float(np.degrees(angle)), 4),
+    }
     return BoardPose(Tn, pose.corners, pose.reprojection_px, info)
 
 
-def render_board_view(spec: BoardSpec, K: np.ndarray, T_camera_board: np.ndarray, width: int, height: int,
-                      background: int = 110) -> tuple[np.ndarray, np.ndarray]:
+def render_board_view(
+    spec: BoardSpec, K: np.ndarray, T_camera_board: np.ndarray, width: int, height: int, background: int = 110
+) -> tuple[np.ndarray, np.ndarray]:
     """A synthetic camera view of the board (grey uint8) and its z-depth (float32 m), for tests.
 
     The board plane maps to the image by the homography K [r1 r2 t] (board metres to pixels),
@@ -236,8 +263,9 @@ def render_board_view(spec: BoardSpec, K: np.ndarray, T_camera_board: np.ndarray
     sheet = cv2.copyMakeBorder(board, m, m, m, m, cv2.BORDER_CONSTANT, value=255)
     S = np.array([[1 / px_per_m, 0, -margin_m], [0, 1 / px_per_m, -margin_m], [0, 0, 1]])  # sheet pixel -> board m
     H = K @ np.column_stack([T_camera_board[:3, 0], T_camera_board[:3, 1], T_camera_board[:3, 3]]) @ S
-    img = cv2.warpPerspective(sheet, H, (width, height), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_CONSTANT,
-                              borderValue=background)
+    img = cv2.warpPerspective(
+        sheet, H, (width, height), flags=cv2.INTER_AREA, borderMode=cv2.BORDER_CONSTANT, borderValue=background
+    )
     # z-depth of the board plane (n . X = n . t) along each pixel ray, inside the sheet only
     inside = cv2.warpPerspective(np.ones_like(sheet), H, (width, height), flags=cv2.INTER_NEAREST) > 0
     u, v = np.meshgrid(np.arange(width), np.arange(height))

@@ -11,7 +11,6 @@ import numpy as np
 
 from spare_twin.io import encode_png, write_bytes_atomic, write_json_atomic
 
-
 #: sim; real in the registered frame (as the sim twin); real as `predict` alone frames it.
 SIDES = ("sim", "real", "real_estimated_frame")
 
@@ -57,7 +56,8 @@ def table_markdown(table: dict) -> str:
         lines.append(
             f"| {n} | {s['instances']} | {f(s['sim']['count_accuracy'], '.3f')} | {f(s['real']['count_accuracy'], '.3f')} | "
             f"{f(s['sim']['E_L'], '.4f')} | {f(s['real']['E_L'], '.4f')} | "
-            + ("-" if ja is None else f"{ja['mean']:.2f} / {ja['max']:.2f}") + " | "
+            + ("-" if ja is None else f"{ja['mean']:.2f} / {ja['max']:.2f}")
+            + " | "
             + f"{f(s['real_estimated_frame']['count_accuracy'], '.3f')} / {f(s['real_estimated_frame']['E_L'], '.4f')} |"
         )
     return "\n".join(lines) + "\n"
@@ -85,7 +85,16 @@ def write_table_png(table: dict, path: str | Path) -> Path:
                 bx = int(x0 + i * slot + slot * (0.2 + 0.3 * j))
                 by = int(y0 + h - h * min(v / top, 1.0))
                 cv2.rectangle(img, (bx, by), (bx + int(slot * 0.28), y0 + h), colours[side], -1)
-            cv2.putText(img, f"n={k}", (int(x0 + i * slot + slot * 0.25), y0 + h + 18), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+            cv2.putText(
+                img,
+                f"n={k}",
+                (int(x0 + i * slot + slot * 0.25), y0 + h + 18),
+                cv2.FONT_HERSHEY_SIMPLEX,
+                0.4,
+                (0, 0, 0),
+                1,
+                cv2.LINE_AA,
+            )
     for j, side in enumerate(("sim", "real")):
         cv2.rectangle(img, (60 + j * 120, height - 22), (75 + j * 120, height - 10), colours[side], -1)
         cv2.putText(img, side, (80 + j * 120, height - 11), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (0, 0, 0), 1, cv2.LINE_AA)
