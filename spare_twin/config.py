@@ -3,7 +3,7 @@
 Everything downstream (CAD, URDF, simulation, dataset labels) is a pure function of a `ChainSpec`,
 so `object.json` (its JSON form) is enough to rebuild every output file bit for bit.
 
-Units: `link_lengths_m` are paper units (paper metres, the scale the paper's metrics use);
+Units: `link_lengths_pu` are paper units (paper metres, the scale the paper's metrics use);
 `print_scale` is physical metres per paper metre; part dimensions are millimetres (`*_mm`),
 as in the STL files a slicer reads.
 """
@@ -106,7 +106,7 @@ class ChainSpec:
 
     n_links: int
     """Moving links (1..6)."""
-    link_lengths_m: tuple[float, ...]
+    link_lengths_pu: tuple[float, ...]
     """n + 1 lengths in paper units, base first."""
     colors: tuple[str, ...]
     """n + 1 colour names from COLORS, base first."""
@@ -120,14 +120,14 @@ class ChainSpec:
 
     def __post_init__(self) -> None:
         # Coerce sequences so a spec built from JSON lists equals one built from tuples.
-        object.__setattr__(self, "link_lengths_m", tuple(float(x) for x in self.link_lengths_m))
+        object.__setattr__(self, "link_lengths_pu", tuple(float(x) for x in self.link_lengths_pu))
         object.__setattr__(self, "colors", tuple(str(c) for c in self.colors))
         validate(self)
 
     # -- derived quantities -------------------------------------------------------------
     @property
     def link_lengths_mm(self) -> tuple[float, ...]:
-        return tuple(length * self.print_scale * 1000.0 for length in self.link_lengths_m)
+        return tuple(length * self.print_scale * 1000.0 for length in self.link_lengths_pu)
 
     @property
     def layer_pitch_mm(self) -> float:
@@ -137,13 +137,14 @@ class ChainSpec:
     def label_lengths(self) -> np.ndarray:
         """The paper's 7-slot length label (paper units), zeros past the last link."""
         out = np.zeros(LABEL_SLOTS, dtype=np.float32)
-        out[: self.n_links + 1] = self.link_lengths_m
+        out[: self.n_links + 1] = self.link_lengths_pu
         return out
 
     # -- JSON round trip -----------------------------------------------------------------
     def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["link_lengths_m"] = list(self.link_lengths_m)
+        # object.json names the paper-unit lengths `link_lengths_m` (DESIGN.md); the key keeps its place.
+        d = {("link_lengths_m" if k == "link_lengths_pu" else k): v for k, v in dataclasses.asdict(self).items()}
+        d["link_lengths_m"] = list(self.link_lengths_pu)
         d["colors"] = list(self.colors)
         return d
 
@@ -151,14 +152,14 @@ class ChainSpec:
     def from_dict(cls, d: dict, source: str = "configuration") -> ChainSpec:
         if not isinstance(d, dict):
             raise SpareTwinError(f"{source}: expected a JSON object")
-        known = {f.name for f in dataclasses.fields(cls)}
+        known = {f.name for f in dataclasses.fields(cls)} - {"link_lengths_pu"} | {"link_lengths_m"}
         unknown = sorted(set(d) - known - {"format", "derived"})
         if unknown:
             raise SpareTwinError(f"{source}: unknown key(s) {', '.join(unknown)}")
         missing = [k for k in ("n_links", "link_lengths_m", "colors") if k not in d]
         if missing:
             raise SpareTwinError(f"{source}: missing key(s) {', '.join(missing)}")
-        kwargs = {k: v for k, v in d.items() if k in known}
+        kwargs = {("link_lengths_pu" if k == "link_lengths_m" else k): v for k, v in d.items() if k in known}
         try:
             if "parts" in kwargs:
                 kwargs["parts"] = _sub(PartDims, kwargs["parts"], f"{source}: parts")
@@ -206,9 +207,9 @@ def validate(spec: ChainSpec) -> None:
         _fail("n_links", f"must be an integer, got {n!r}")
     if not MIN_MOVING_LINKS <= n <= MAX_MOVING_LINKS:
         _fail("n_links", f"{n} is out of range {MIN_MOVING_LINKS}..{MAX_MOVING_LINKS}")
-    if len(spec.link_lengths_m) != n + 1:
-        _fail("link_lengths_m", f"needs n_links + 1 = {n + 1} values (base first), got {len(spec.link_lengths_m)}")
-    for i, length in enumerate(spec.link_lengths_m):
+    if len(spec.link_lengths_pu) != n + 1:
+        _fail("link_lengths_m", f"needs n_links + 1 = {n + 1} values (base first), got {len(spec.link_lengths_pu)}")
+    for i, length in enumerate(spec.link_lengths_pu):
         if not math.isfinite(length) or length <= 0:
             _fail("link_lengths_m", f"link {i} length {length} must be positive")
     if len(spec.colors) != n + 1:
@@ -318,4 +319,4 @@ def sample_chain(n_links: int | None = None, seed: int = 0, **overrides) -> Chai
     colors = tuple(names[int(i)] for i in rng.integers(0, len(names), size=n_links + 1))
     kwargs = dict(name=f"spare_n{n_links}_s{seed}", seed=seed)
     kwargs.update(overrides)
-    return ChainSpec(n_links=n_links, link_lengths_m=lengths, colors=colors, **kwargs)
+    return ChainSpec(n_links=n_links, link_lengths_pu=lengths, colors=colors, **kwargs)

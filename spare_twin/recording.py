@@ -9,7 +9,7 @@ Layout (all paths relative to the recording folder)::
     cameras/<cam>/segmentation/000000.png   uint8, 0 = background, k = link k-1 (sim only, optional)
     cameras/<cam>/T_world_camera.npy    float64 (frames, 4, 4), only for cameras that move
     ground_truth.npz                    sim only, optional: joint_angles_rad (frames, n),
-                                        T_world_link (frames, n + 1, 4, 4), link_lengths_m (n + 1,)
+                                        T_world_link (frames, n + 1, 4, 4), link_lengths_pu (n + 1,)
 
 recording.json keys: ``format`` ("spare-twin-recording"), ``version`` (1), ``frames`` (int),
 ``fps`` (float), ``depth_scale`` (metres per depth unit), ``timestamps_s`` (one per frame),
@@ -160,6 +160,22 @@ class Recording:
             return np.arange(self.n_frames, dtype=np.float64) / self.fps
         return np.asarray(ts, dtype=np.float64)
 
+    @property
+    def registration(self) -> dict | None:
+        """What `capture register` wrote into recording.json (camera, world, summary, fused cloud, object),
+        or None for a recording that was never registered."""
+        return self.meta.get("registration") or None
+
+    @property
+    def in_sim_world(self) -> bool:
+        """True for an unregistered simulation recording whose cameras are all posed: its world frame is
+        the simulation's (table z = 0, the object's base at the origin, the chain in the x-z plane)."""
+        return (
+            self.registration is None
+            and self.source.get("kind") == "sim"
+            and all(c.poses != "unknown" for c in self.cameras)
+        )
+
     def camera(self, name: str) -> Camera:
         for cam in self.cameras:
             if cam.name == name:
@@ -183,16 +199,29 @@ class Recording:
 
     def depth_m(self, cam: str, frame: int) -> np.ndarray:
         """float32 (H, W) z-depth in metres, 0 where there is no reading."""
-        img = self._checked(cam, "depth", frame)
-        if img.dtype != np.uint16 or img.ndim != 2:
-            raise SpareTwinError(f"{self.path(cam, 'depth', frame)}: depth must be a single-channel 16-bit PNG")
-        return img.astype(np.float32) * np.float32(self.depth_scale)
+        return self.depth_raw(cam, frame).astype(np.float32) * np.float32(self.depth_scale)
 
     def segmentation(self, cam: str, frame: int) -> np.ndarray | None:
         """uint8 (H, W): 0 background, k = link k - 1; None when the recording has none."""
         if not self.path(cam, "segmentation", frame).is_file():
             return None
         return self._checked(cam, "segmentation", frame)
+
+    def depth_raw(self, cam: str, frame: int) -> np.ndarray:
+        """uint16 (H, W) depth as stored: metres = value * depth_scale, 0 = no reading."""
+        img = self._checked(cam, "depth", frame)
+        if img.dtype != np.uint16 or img.ndim != 2:
+            raise SpareTwinError(f"{self.path(cam, 'depth', frame)}: depth must be a single-channel 16-bit PNG")
+        return img
+
+    def camera_poses(self, cam: str) -> np.ndarray | None:
+        """(frames, 4, 4) camera-to-world poses of `cam` (a fixed camera's pose repeated), None when unknown."""
+        c = self.camera(cam)
+        if c.poses == "per_frame":
+            return self._poses[cam].copy()
+        if c.T_world_camera is None:
+            return None
+        return np.repeat(np.asarray(c.T_world_camera, np.float64)[None], self.n_frames, axis=0)
 
     def T_world_camera(self, cam: str, frame: int) -> np.ndarray | None:
         c = self.camera(cam)

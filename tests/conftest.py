@@ -1,8 +1,46 @@
+"""Fixtures shared by the test modules. Session-scoped: the expensive ones (a training run, a
+registered hand-held capture, tiny checkpoints) are made once per test session."""
+
+import json
+import shutil
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
+
+#: The simulated hand-held capture of `handheld_rec`: frames, resolution and seed.
+FRAMES, RESOLUTION, SEED = 12, "320x240", 1
+
+#: A small geometry-aware multitask net: learns the count of synthetic chains in a few epochs on a CPU.
+TINY = {
+    "preset": "geo-depth-mv-multitask",
+    "net": {"channels": [8, 16, 32], "fc_hidden": 64, "dropout": 0.0, "predict_angles": False},
+    "train": {
+        "epochs": 5,
+        "batch_size": 16,
+        "lr": 3e-3,
+        "samples_per_epoch": None,
+        "val_samples": None,
+        "length_weight": 1.0,
+        "threads": 1,
+    },
+}
+
+
+def run_cli(argv, capsys):
+    """Run `spare-twin ARGV` in-process; returns (exit code, stdout, stderr)."""
+    from spare_twin.cli import main
+
+    code = main(argv)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def predict_json(rec, model, capsys, *extra):
+    """`spare-twin predict REC --model MODEL --json`: (exit code, parsed JSON or None, stderr)."""
+    code, out, err = run_cli(["predict", str(rec), "--model", str(model), "--json", *extra], capsys)
+    return code, (json.loads(out) if code == 0 else None), err
 
 
 @pytest.fixture(scope="session")
@@ -15,10 +53,83 @@ def object_dirs(tmp_path_factory):
     return {n: build_object(sample_chain(n, seed=100 + n), root / f"n{n}", preview=(n == 3)) for n in range(1, 7)}
 
 
-def run_cli(argv, capsys):
-    """Run `spare-twin ARGV` in-process; returns (exit code, stdout, stderr)."""
+@pytest.fixture(scope="session")
+def synthetic_data(tmp_path_factory):
+    """An easy synthetic multi-view set (192 / 64 / 64 samples)."""
+    from spare_twin.dataset.synthetic import SyntheticSpec, write_synthetic
+
+    spec = SyntheticSpec(sizes=(("train", 192), ("val", 64), ("test", 64)), seed=5)
+    return write_synthetic(tmp_path_factory.mktemp("syn"), spec)
+
+
+@pytest.fixture(scope="session")
+def trained(synthetic_data, tmp_path_factory):
+    """One CLI training run of TINY on `synthetic_data`, shared by the training and predict tests."""
     from spare_twin.cli import main
 
-    code = main(argv)
-    out, err = capsys.readouterr()
-    return code, out, err
+    root = tmp_path_factory.mktemp("run")
+    cfg = root / "cfg.json"
+    cfg.write_text(json.dumps(TINY))
+    code = main(
+        ["train", "--config", str(cfg), "--data", str(synthetic_data), "--out", str(root / "run"), "--seed", "3"]
+    )
+    assert code == 0
+    return root / "run"
+
+
+@pytest.fixture(scope="session")
+def printed_object(tmp_path_factory):
+    """A 2-link object (the one the simulated sensor records)."""
+    from spare_twin.config import sample_chain
+    from spare_twin.object.folder import build_object
+
+    return build_object(sample_chain(2, seed=7), tmp_path_factory.mktemp("printed") / "obj", preview=False)
+
+
+@pytest.fixture(scope="session")
+def handheld_rec(printed_object, tmp_path_factory):
+    """`spare-twin render --path handheld --noise realsense_sr300`: FRAMES frames at RESOLUTION."""
+    from spare_twin.cli import main
+
+    out = tmp_path_factory.mktemp("handheld") / "rec"
+    argv = ["render", str(printed_object.root), "--out", str(out), "--path", "handheld", "--noise", "realsense_sr300"]
+    assert main([*argv, "--resolution", RESOLUTION, "--frames", str(FRAMES), "--seed", str(SEED)]) == 0
+    return out
+
+
+@pytest.fixture(scope="session")
+def registered_rec(handheld_rec, tmp_path_factory):
+    """A copy of the hand-held recording after `spare-twin capture register` (fast settings), and its JSON."""
+    import io
+    from contextlib import redirect_stderr, redirect_stdout
+
+    from spare_twin.cli import main
+
+    out = tmp_path_factory.mktemp("registered") / "rec"
+    shutil.copytree(handheld_rec, out)
+    buf = io.StringIO()
+    argv = ["capture", "register", str(out), "--loop-gaps", "3", "--global-init", "never", "--voxel", "0.006"]
+    with redirect_stdout(buf), redirect_stderr(io.StringIO()):
+        assert main([*argv, "--object", "require", "--json"]) == 0
+    return out, json.loads(buf.getvalue())
+
+
+@pytest.fixture(scope="session")
+def tiny_models(tmp_path_factory):
+    """Two tiny count networks trained for one epoch on a tiny synthetic set: a geometry-aware voxel
+    net (posed views) and the paper's Conv3D on depth images (canonical rig views)."""
+    from spare_twin.dataset.synthetic import SyntheticSpec, write_synthetic
+    from spare_twin.nets.presets import resolve
+    from spare_twin.nets.train import train
+
+    root = tmp_path_factory.mktemp("tiny")
+    data = write_synthetic(root / "syn", SyntheticSpec(sizes=(("train", 12), ("val", 6), ("test", 6)), seed=5))
+    cfg = {
+        "net": {"channels": [4, 8], "fc_hidden": 16, "dropout": 0.0},
+        "train": {"epochs": 1, "batch_size": 6, "samples_per_epoch": None, "val_samples": None, "threads": 1},
+    }
+    models = {}
+    for name, preset in (("geo", "geo-depth-mv-count"), ("conv3d", "conv3d-depth-mv-count")):
+        train(resolve(preset, cfg), data, root / name, progress=False)
+        models[name] = root / name / "model.pt"
+    return models

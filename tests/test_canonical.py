@@ -6,14 +6,7 @@ import math
 import numpy as np
 import pytest
 from capture_helpers import APC, TUM_K, TUM_PAIR
-from conftest import run_cli
-from sensor_helpers import (  # noqa: F401  (shared fixtures)
-    handheld_rec,
-    predict_json,
-    printed_object,
-    registered_rec,
-    tiny_models,
-)
+from conftest import predict_json, run_cli
 
 
 def _rig_truth(obj, angles, rig):
@@ -53,7 +46,7 @@ def test_table_and_background_match_the_twin():
         assert abs(np.median(grey[f.depth_m == 0]) - BACKGROUND_GREY) < 0.01
 
 
-def test_canonical_views_of_the_handheld_recording_match_the_rig_render(registered_rec, printed_object):  # noqa: F811
+def test_canonical_views_of_the_handheld_recording_match_the_rig_render(registered_rec, printed_object):
     from spare_twin.observe.canonical import object_frame, to_rig_views
     from spare_twin.recording import Recording
     from spare_twin.sim.rig import load_rig
@@ -79,7 +72,7 @@ def test_canonical_views_of_the_handheld_recording_match_the_rig_render(register
     assert _iou(cv.depth_m[best] > 0, depth_true > 0) > 0.95
 
 
-def test_rig_recordings_take_the_no_op_path_and_other_rigs_the_sim_path(printed_object, tmp_path):  # noqa: F811
+def test_rig_recordings_take_the_no_op_path_and_other_rigs_the_sim_path(printed_object, tmp_path):
     from spare_twin.cli import main
     from spare_twin.dataset.synthetic import RIG_NAME
     from spare_twin.dataset.synthetic import rig as synthetic_rig
@@ -108,7 +101,7 @@ def test_rig_recordings_take_the_no_op_path_and_other_rigs_the_sim_path(printed_
     assert np.median(np.abs(cv.depth_m[0][both] - depth_true[both])) < 0.003
 
 
-def test_predict_on_the_simulated_sensor_recording(registered_rec, handheld_rec, tiny_models, capsys):  # noqa: F811
+def test_predict_on_the_simulated_sensor_recording(registered_rec, handheld_rec, tiny_models, capsys):
     root, _ = registered_rec
     for name, method in (("geo", "posed"), ("conv3d", "fused")):
         code, res, err = predict_json(root, tiny_models[name], capsys)
@@ -123,7 +116,7 @@ def test_predict_on_the_simulated_sensor_recording(registered_rec, handheld_rec,
     assert res["input"] == "posed" and res["yaw_hypotheses_deg"] == [0.0]
 
 
-def test_predict_on_real_imported_recordings(tiny_models, tmp_path, capsys):  # noqa: F811
+def test_predict_on_real_imported_recordings(tiny_models, tmp_path, capsys):
     """Real frames with no printed object: the APC shelf bin has no cluster standing on its floor, so
     predict says so in one line; the TUM desk has objects on it, so predict measures one of them."""
     from spare_twin.capture.importers import ImportOptions, import_folder

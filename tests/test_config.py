@@ -11,7 +11,7 @@ def test_sampled_lengths_follow_the_paper_distribution():
     base, links, totals, scaled = [], [], [], 0
     for seed in range(600):
         spec = sample_chain(n_links=1 + seed % 6, seed=seed)
-        L = np.array(spec.link_lengths_m)
+        L = np.array(spec.link_lengths_pu)
         total = L.sum()
         totals.append(total)
         if np.isclose(total, 3.0):
@@ -36,7 +36,7 @@ def test_sampling_without_n_is_balanced_over_counts():
 
 def test_sampling_is_reproducible_and_seed_dependent():
     assert sample_chain(4, seed=7) == sample_chain(4, seed=7)
-    assert sample_chain(4, seed=7).link_lengths_m != sample_chain(4, seed=8).link_lengths_m
+    assert sample_chain(4, seed=7).link_lengths_pu != sample_chain(4, seed=8).link_lengths_pu
 
 
 def test_json_round_trip_is_exact(tmp_path):
@@ -51,7 +51,7 @@ def test_json_round_trip_is_exact(tmp_path):
 def test_label_has_seven_slots():
     spec = sample_chain(2, seed=0)
     label = spec.label_lengths()
-    assert label.shape == (LABEL_SLOTS,) and (label[3:] == 0).all() and np.allclose(label[:3], spec.link_lengths_m)
+    assert label.shape == (LABEL_SLOTS,) and (label[3:] == 0).all() and np.allclose(label[:3], spec.link_lengths_pu)
 
 
 @pytest.mark.parametrize(

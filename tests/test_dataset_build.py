@@ -16,7 +16,6 @@ from spare_twin.dataset.build import generate_dataset
 from spare_twin.dataset.generate import SPLIT_COUNTS, GenConfig, n_links_of, split_of
 from spare_twin.errors import SpareTwinError
 
-pytest.importorskip("h5py")
 CFG = GenConfig(frames=3)
 
 

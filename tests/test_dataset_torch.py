@@ -2,13 +2,12 @@
 
 import numpy as np
 import pytest
+import torch
 
-torch = pytest.importorskip("torch")
-
-from spare_twin.dataset.build import generate_dataset  # noqa: E402
-from spare_twin.dataset.generate import GenConfig, sequence_spec  # noqa: E402
-from spare_twin.dataset.torch_data import MultiViewDataset, OnTheFlyDataset, TemporalDataset  # noqa: E402
-from spare_twin.sim.noise import DepthNoise  # noqa: E402
+from spare_twin.dataset.build import generate_dataset
+from spare_twin.dataset.generate import GenConfig, sequence_spec
+from spare_twin.dataset.torch_data import MultiViewDataset, OnTheFlyDataset, TemporalDataset
+from spare_twin.sim.noise import DepthNoise
 
 T = 4
 
@@ -23,9 +22,9 @@ def data(tmp_path_factory):
 def _check(item, lead, n_views_meta):
     assert item["x"].dtype == torch.float32 and item["x"].shape == (lead, 96, 128)
     assert item["n_links"].dtype == torch.int64 and 1 <= int(item["n_links"]) <= 6
-    assert item["lengths_m"].shape == (7,) and item["lengths_m"].dtype == torch.float32
+    assert item["lengths_pu"].shape == (7,) and item["lengths_pu"].dtype == torch.float32
     n = int(item["n_links"])
-    assert (item["lengths_m"][: n + 1] > 0).all() and (item["lengths_m"][n + 1 :] == 0).all()
+    assert (item["lengths_pu"][: n + 1] > 0).all() and (item["lengths_pu"][n + 1 :] == 0).all()
     assert item["K"].shape == (n_views_meta, 3, 3) and item["T_world_camera"].shape == (n_views_meta, 4, 4)
     assert item["print_scale"].dtype == torch.float32
 
@@ -36,7 +35,7 @@ def test_multiview_depth_and_grey(data):
     item = ds[T * 2 + 1]  # sequence 2, time step 1
     _check(item, 8, 8)
     assert int(item["n_links"]) == 3
-    assert np.allclose(item["lengths_m"][:4].numpy(), sequence_spec(2, 2).link_lengths_m)
+    assert np.allclose(item["lengths_pu"][:4].numpy(), sequence_spec(2, 2).link_lengths_pu)
     assert item["joint_angles_rad"].shape == (6,) and (item["joint_angles_rad"][3:] == 0).all()
     x = item["x"]
     assert 0.2 < x[x > 0].min() < 0.6 and x.max() < 2.0  # metres

@@ -3,12 +3,10 @@
 import json
 
 import numpy as np
-import pytest
 
 from spare_twin.cli import main
+from spare_twin.object import folder as objects
 from spare_twin.recording import Recording
-
-objects = pytest.importorskip("spare_twin.object.folder")
 
 
 def test_render_writes_a_complete_recording(tmp_path, capsys):
@@ -31,7 +29,7 @@ def test_render_writes_a_complete_recording(tmp_path, capsys):
     assert (seg > 0).any() and (d[seg > 0] > 0).all()
     gt = rec.ground_truth()
     assert gt["joint_angles_rad"].shape == (3, 2) and gt["T_world_link"].shape == (3, 3, 4, 4)
-    assert np.allclose(gt["link_lengths_m"], obj.spec.link_lengths_m)
+    assert np.allclose(gt["link_lengths_m"], obj.spec.link_lengths_pu)
     meta = json.loads((tmp_path / "rec" / "recording.json").read_text())
     assert meta["format"] == "spare-twin-recording"
 

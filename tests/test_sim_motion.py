@@ -12,7 +12,7 @@ from spare_twin.sim.motion import MotionConfig, lowest_point_m, random_motion
 def test_motion_respects_limits_and_keepout(n):
     for seed in range(8):
         spec = sample_chain(n, seed)
-        lengths = np.asarray(spec.link_lengths_m) * spec.print_scale
+        lengths = np.asarray(spec.link_lengths_pu) * spec.print_scale
         limits = np.tile([-np.pi, np.pi], (n, 1))
         limits[0] = [-2.0, 2.0]
         keepout, half_w = 0.017, 0.006
@@ -31,7 +31,7 @@ def test_motion_respects_limits_and_keepout(n):
 
 def test_motion_actually_moves():
     spec = sample_chain(3, 0)
-    lengths = np.asarray(spec.link_lengths_m) * spec.print_scale
+    lengths = np.asarray(spec.link_lengths_pu) * spec.print_scale
     a = random_motion(np.tile([-np.pi, np.pi], (3, 1)), lengths, 0.017, 0.006, np.random.default_rng(0), MotionConfig())
     assert np.ptp(a, axis=0).max() > 0.5
 

@@ -8,8 +8,6 @@ from spare_twin.object.folder import build_sim_twin
 from spare_twin.sim.rig import Rig, load_rig, look_at
 from spare_twin.sim.twin import Twin, linearize_depth
 
-pytest.importorskip("pybullet")
-
 
 def test_linearize_depth_formula():
     near, far = 0.05, 2.0
@@ -49,7 +47,7 @@ def test_point_lands_on_the_pixel_K_predicts(wh):
 
 
 def test_segmentation_and_link_poses(tmp_path):
-    spec = ChainSpec(n_links=3, link_lengths_m=(1.6, 0.6, 0.5, 0.4), colors=("red", "blue", "green", "yellow"))
+    spec = ChainSpec(n_links=3, link_lengths_pu=(1.6, 0.6, 0.5, 0.4), colors=("red", "blue", "green", "yellow"))
     obj = build_sim_twin(spec, tmp_path / "o")
     rig = Rig()
     with Twin() as twin:
@@ -86,7 +84,7 @@ def test_default_rig_frames_the_largest_object(tmp_path):
         assert np.allclose(T[:3, 2], to_target / np.linalg.norm(to_target))
         assert T[:3, 1][2] < 0  # image y points down in the world
     # the tallest chain (sum of lengths 3 paper m) and the widest sweep stay inside every view
-    spec = ChainSpec(n_links=1, link_lengths_m=(1.3, 1.7), colors=("red", "blue"))
+    spec = ChainSpec(n_links=1, link_lengths_pu=(1.3, 1.7), colors=("red", "blue"))
     with Twin() as twin:
         twin.load(build_sim_twin(spec, tmp_path / "o"))
         for angle in (0.0, 1.4, -1.4):

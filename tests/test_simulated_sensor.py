@@ -5,11 +5,10 @@ object) runs on it."""
 import json
 
 import numpy as np
-from conftest import run_cli
-from sensor_helpers import FRAMES, handheld_rec, printed_object, registered_rec  # noqa: F401  (shared fixtures)
+from conftest import FRAMES, run_cli
 
 
-def test_handheld_recording_looks_like_a_real_capture(handheld_rec, printed_object):  # noqa: F811
+def test_handheld_recording_looks_like_a_real_capture(handheld_rec, printed_object):
     from spare_twin.recording import Recording
 
     rec = Recording.open(handheld_rec)
@@ -42,7 +41,7 @@ def test_handheld_recording_looks_like_a_real_capture(handheld_rec, printed_obje
     assert (d > 0).mean() > 0.4
 
 
-def test_render_sensor_options_and_errors(printed_object, tmp_path, capsys):  # noqa: F811
+def test_render_sensor_options_and_errors(printed_object, tmp_path, capsys):
     from spare_twin.recording import Recording
 
     out = tmp_path / "hidden"
@@ -81,13 +80,13 @@ def test_render_sensor_options_and_errors(printed_object, tmp_path, capsys):  # 
     assert not (tmp_path / "x").exists()
 
 
-def test_register_finds_the_object_on_the_simulated_sensor(registered_rec, printed_object):  # noqa: F811
+def test_register_finds_the_object_on_the_simulated_sensor(registered_rec, printed_object):
     from spare_twin.capture.pipeline import fuse_recording
 
     root, res = registered_rec
     assert res["object"] is not None and res["used_reference"] is True
     pts, cols, T_wo = fuse_recording(root)
-    height = printed_object.spec.link_lengths_m[0] * printed_object.spec.print_scale  # at least the base post
+    height = printed_object.spec.link_lengths_pu[0] * printed_object.spec.print_scale  # at least the base post
     assert len(pts) > 500 and pts[:, 2].max() > 0.8 * height
     assert abs(T_wo[2, 3]) < 0.005 and T_wo[2, 2] > 0.999  # the table is z = 0 of the sim world
     assert np.linalg.norm(np.median(pts[:, :2], axis=0)) < 0.1  # near the base, which stands at the origin

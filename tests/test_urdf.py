@@ -37,7 +37,7 @@ def test_joint_axis_distances_equal_configured_lengths(object_dirs):
     for obj in object_dirs.values():
         urdf = load_urdf(obj.urdf_path)
         joints = {j.name: j for j in urdf.robot.joints}
-        L_m = np.array(obj.spec.link_lengths_m) * obj.spec.print_scale
+        L_m = np.array(obj.spec.link_lengths_pu) * obj.spec.print_scale
         for k in range(1, obj.spec.n_links + 1):
             j = joints[f"joint{k}"]
             assert np.allclose(j.axis, [0, 1, 0])
@@ -103,15 +103,15 @@ def test_joint_limits_keep_link1_off_the_foot(object_dirs):
 
     limited = 0
     # The fixture's chains plus one whose first link nearly reaches the foot (base 1.3, link 1.0).
-    long_first = ChainSpec(n_links=2, link_lengths_m=(1.3, 1.0, 0.5), colors=("red", "blue", "green"))
+    long_first = ChainSpec(n_links=2, link_lengths_pu=(1.3, 1.0, 0.5), colors=("red", "blue", "green"))
     for spec in [obj.spec for obj in object_dirs.values()] + [long_first]:
         lo, hi = joint_limits_rad(spec)[0]
         _, reach = link_segment_m(spec, 1)
-        axis_z = spec.link_lengths_m[0] * spec.print_scale
+        axis_z = spec.link_lengths_pu[0] * spec.print_scale
         floor = keepout_height_m(spec) + KEEPOUT_MARGIN_M - 1e-9
         half_width = spec.parts.link_width_mm / 2000
 
-        def link1_bottom(a):
+        def link1_bottom(a, axis_z=axis_z, reach=reach, half_width=half_width):
             return axis_z + min(0.0, reach * np.cos(a)) - half_width
 
         assert all(link1_bottom(a) >= floor for a in np.linspace(lo, hi, 200))

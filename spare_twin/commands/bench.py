@@ -92,7 +92,7 @@ def _paired_worker(job: tuple) -> dict:
         twin.load(obj)
         angles = random_motion(
             obj.joint_limits_rad,
-            obj.link_lengths_phys_m,
+            obj.link_lengths_m,
             obj.keepout_height_m,
             obj.link_half_width_m,
             np.random.default_rng(_seeds(seed, index)["motion"]),

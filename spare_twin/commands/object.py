@@ -89,7 +89,7 @@ def run(args: argparse.Namespace) -> int:
     summary = {
         "out": str(obj.root),
         "n_links": spec.n_links,
-        "link_lengths_m": list(spec.link_lengths_m),
+        "link_lengths_m": list(spec.link_lengths_pu),
         "link_lengths_mm": [round(x, 3) for x in spec.link_lengths_mm],
         "print_scale": spec.print_scale,
         "urdf": obj.urdf_path.name,

@@ -9,7 +9,7 @@ def register(sub) -> None:
     p = sub.add_parser(
         "predict",
         help="count the moving links and measure them in a recording",
-        description="Run a network on a recording folder: n_links, link_lengths_m (n + 1 values, base first, paper units) "
+        description="Run a network on a recording folder: n_links, link_lengths_pu (n + 1 values, base first, paper units) "
         "and the count-class probabilities.",
     )
     p.add_argument("recording", metavar="REC_DIR", help="recording folder (recording.json)")

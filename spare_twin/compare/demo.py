@@ -29,7 +29,7 @@ from spare_twin.sim.render import RenderConfig, render_recording
 #: to sum to 3), fixed so every run shows the same object.
 DEMO_CHAIN = ChainSpec(
     n_links=3,
-    link_lengths_m=(1.45, 0.7, 0.5, 0.35),
+    link_lengths_pu=(1.45, 0.7, 0.5, 0.35),
     colors=("black", "red", "blue", "yellow"),
     name="demo_chain",
 )

@@ -154,7 +154,7 @@ class DepthScorer:
 
     def reach_m(self) -> float:
         """How far from its base the chain (and the table round it worth aligning on) can reach."""
-        return float(np.sum(self.obj.spec.link_lengths_m)) * self.obj.spec.print_scale + TABLE_MARGIN_M
+        return float(np.sum(self.obj.spec.link_lengths_pu)) * self.obj.spec.print_scale + TABLE_MARGIN_M
 
     def align_views(self, params: np.ndarray) -> tuple[float, float]:
         """Re-align every view's camera onto the twin posed by `params` and the table plane (see the

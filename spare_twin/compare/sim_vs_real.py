@@ -104,7 +104,7 @@ def render_twin_through(
         n = obj.spec.n_links
         rec.set_ground_truth(
             joint_angles_rad=np.tile(np.asarray(joint_angles_rad, np.float64), (real.n_frames, 1)),
-            link_lengths_m=np.asarray(obj.spec.link_lengths_m),
+            link_lengths_m=np.asarray(obj.spec.link_lengths_pu),
             n_links=np.asarray(n),
             print_scale=np.asarray(obj.spec.print_scale),
         )
@@ -180,7 +180,7 @@ def compare(object_dir, real_dir, model=None, rrd=None, sim_dir=None, cfg: Compa
         camera_poses=aligned_camera_poses(obj, real, fit, T_world_object),
     )
     own_pred = predict_recording(real.root, model, progress=False)
-    truth = {"n_links": obj.spec.n_links, "link_lengths_m": list(obj.spec.link_lengths_m)}
+    truth = {"n_links": obj.spec.n_links, "link_lengths_m": list(obj.spec.link_lengths_pu)}
     gt = real.ground_truth()
     truth["joint_angles_rad"] = None if gt is None else [float(a) for a in np.asarray(gt["joint_angles_rad"])[0]]
 

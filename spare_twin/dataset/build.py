@@ -1,7 +1,7 @@
 """Generate, resume and extend a dataset folder in parallel.
 
     DATA_DIR/dataset.json        the generation settings (seed, GenConfig): fixed at creation
-    DATA_DIR/manifest.json       per sequence: index, file, n_links, link_lengths_m, chain_seed, split
+    DATA_DIR/manifest.json       per sequence: index, file, n_links, link_lengths_pu, chain_seed, split
     DATA_DIR/sequences/seq-NNNNNN.h5   one sequence each (schema in store.py)
 
 Every sequence is a pure function of (seed, index, settings), each file is written under a temporary
@@ -150,7 +150,7 @@ def build_manifest(root: Path, instances: int) -> dict:
                 "index": i,
                 "file": f"sequences/{f.name}",
                 "n_links": spec.n_links,
-                "link_lengths_m": list(spec.link_lengths_m),
+                "link_lengths_m": list(spec.link_lengths_pu),
                 "print_scale": spec.print_scale,
                 "colors": list(spec.colors),
                 "chain_seed": _seeds(seed, i)["chain"],

@@ -174,7 +174,7 @@ def render_sequence(cfg: GenConfig, seed: int, index: int, twin: Twin, workdir: 
 
     angles = random_motion(
         obj.joint_limits_rad,
-        obj.link_lengths_phys_m,
+        obj.link_lengths_m,
         obj.keepout_height_m,
         obj.link_half_width_m,
         np.random.default_rng(seeds["motion"]),

@@ -67,16 +67,16 @@ def rig(n_cams: int = 8, radius_m: float = 0.36, height_m: float = 0.18, target_
     return K, np.stack(poses)
 
 
-def chain_segments(lengths_m: np.ndarray, angles_rad: np.ndarray, print_scale: float) -> list[tuple]:
+def chain_segments(lengths_pu: np.ndarray, angles_rad: np.ndarray, print_scale: float) -> list[tuple]:
     """(start, end) world points per link: base upright at the origin, link k at y = k * pitch."""
-    segs = [(np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, lengths_m[0] * print_scale]))]
+    segs = [(np.array([0.0, 0.0, 0.0]), np.array([0.0, 0.0, lengths_pu[0] * print_scale]))]
     p = segs[0][1].copy()
     theta = 0.0
     for k, q in enumerate(angles_rad, start=1):
         theta += q
         d = np.array([np.sin(theta), 0.0, np.cos(theta)])
         start = np.array([p[0], k * LAYER_PITCH_M, p[2]])
-        end = start + lengths_m[k] * print_scale * d
+        end = start + lengths_pu[k] * print_scale * d
         segs.append((start, end))
         p = end
     return segs
@@ -171,7 +171,7 @@ def make_sample(spec: SyntheticSpec, split: str, index: int) -> dict[str, np.nda
     K, poses = rig()
     label = np.zeros(7, np.float32)
     label[: n + 1] = lengths
-    out = {"n_links": np.int64(n), "lengths_m": label, "print_scale": np.float32(spec.print_scale)}
+    out = {"n_links": np.int64(n), "lengths_pu": label, "print_scale": np.float32(spec.print_scale)}
     if spec.mode == "mv":
         q = sample_angles(n, rng, lengths, spec.print_scale)
         segs = chain_segments(lengths, q, spec.print_scale)

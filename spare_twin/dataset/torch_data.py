@@ -99,7 +99,7 @@ def make_sample(
     return {
         "x": torch.from_numpy(np.ascontiguousarray(x, dtype=np.float32)),
         "n_links": torch.tensor(int(n_links), dtype=torch.int64),
-        "lengths_m": torch.from_numpy(np.asarray(lengths_label, np.float32).reshape(LABEL_SLOTS)),
+        "lengths_pu": torch.from_numpy(np.asarray(lengths_label, np.float32).reshape(LABEL_SLOTS)),
         "joint_angles_rad": torch.from_numpy(ja),
         "K": torch.from_numpy(np.asarray(K, np.float32)),
         "T_world_camera": torch.from_numpy(np.asarray(T_wc, np.float32)),

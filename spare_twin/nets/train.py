@@ -51,7 +51,7 @@ def compute_loss(net: NetConfig, tr: TrainConfig, out: dict, batch: dict, device
             out["count_logits"], n - 1, label_smoothing=tr.label_smoothing
         )
     if "lengths" in out:
-        target = batch["lengths_m"].to(device, torch.float32)
+        target = batch["lengths_pu"].to(device, torch.float32)
         err = (out["lengths"] - target) ** 2
         if not (net.task == "e2e" and net.arch == "conv3d" or net.arch == "cnn_lstm"):
             err = err * (torch.arange(7, device=device)[None] <= n[:, None])
@@ -100,7 +100,7 @@ def run_inference(
         n = batch["n_links"].to(device)
         res = decode(model, net, model_inputs(batch, device), true_n=n)
         res["true_n"] = n
-        res["true_lengths"] = batch["lengths_m"]
+        res["true_lengths"] = batch["lengths_pu"]
         for k, v in res.items():
             acc.setdefault(k, []).append(v.detach().cpu().numpy())
     return {k: np.concatenate(v) for k, v in acc.items()}

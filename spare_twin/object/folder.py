@@ -59,9 +59,9 @@ class ObjectFolder:
         return keepout_height_m(self.spec)
 
     @property
-    def link_lengths_phys_m(self) -> np.ndarray:
+    def link_lengths_m(self) -> np.ndarray:
         """(n + 1,) link lengths of the printed object (metres), base first."""
-        return np.asarray(self.spec.link_lengths_m, dtype=np.float64) * self.spec.print_scale
+        return np.asarray(self.spec.link_lengths_pu, dtype=np.float64) * self.spec.print_scale
 
     @property
     def link_half_width_m(self) -> float:

@@ -20,7 +20,7 @@ def joint_origin(spec: ChainSpec, k: int) -> np.ndarray:
     """4x4 origin of joint k (1..n) in link k-1's frame (metres)."""
     T = np.eye(4)
     T[1, 3] = spec.layer_pitch_mm / 1000.0
-    T[2, 3] = spec.link_lengths_m[k - 1] * spec.print_scale
+    T[2, 3] = spec.link_lengths_pu[k - 1] * spec.print_scale
     return T
 
 
@@ -68,13 +68,13 @@ def link_segment_m(spec: ChainSpec, k: int) -> tuple[float, float]:
 
     The plate is this segment thickened by half the link width (a stadium).
     """
-    length = spec.link_lengths_m[k] * spec.print_scale
+    length = spec.link_lengths_pu[k] * spec.print_scale
     if k == spec.n_links:  # last link: the tip is at `length`, so the rounded end's centre is inside
         return 0.0, max(length - spec.parts.link_width_mm / 2000.0, 0.0)
     return 0.0, length
 
 
-def plate_lowest_point_m(angles_rad, lengths_phys_m, half_width_m: float) -> np.ndarray:
+def plate_lowest_point_m(angles_rad, lengths_m, half_width_m: float) -> np.ndarray:
     """Lowest height of any moving link's plate for poses (..., n) -> (...).
 
     Closed form of the planar chain (joint k turns about +y, so a link at cumulative angle phi runs
@@ -82,7 +82,7 @@ def plate_lowest_point_m(angles_rad, lengths_phys_m, half_width_m: float) -> np.
     width; the last link's segment ends half a width before its tip.
     """
     angles = np.asarray(angles_rad, dtype=np.float64)
-    lengths = np.asarray(lengths_phys_m, dtype=np.float64)
+    lengths = np.asarray(lengths_m, dtype=np.float64)
     segment = lengths[1:].copy()
     segment[-1] = max(segment[-1] - half_width_m, 0.0)
     dz = np.cos(np.cumsum(angles, axis=-1)) * lengths[1:]
@@ -93,7 +93,7 @@ def plate_lowest_point_m(angles_rad, lengths_phys_m, half_width_m: float) -> np.
 
 def lowest_point_m(spec: ChainSpec, joint_angles_rad) -> float:
     """Lowest height reached by any moving link's plate at these joint angles."""
-    lengths = np.asarray(spec.link_lengths_m) * spec.print_scale
+    lengths = np.asarray(spec.link_lengths_pu) * spec.print_scale
     return float(plate_lowest_point_m(joint_angles_rad, lengths, spec.parts.link_width_mm / 2000.0))
 
 
@@ -105,7 +105,7 @@ def joint_limits_rad(spec: ChainSpec) -> np.ndarray:
     """
     limits = np.tile([-math.pi, math.pi], (spec.n_links, 1))
     _, reach = link_segment_m(spec, 1)
-    axis_height = spec.link_lengths_m[0] * spec.print_scale
+    axis_height = spec.link_lengths_pu[0] * spec.print_scale
     floor = keepout_height_m(spec) + KEEPOUT_MARGIN_M + spec.parts.link_width_mm / 2000.0
     if reach > 0 and axis_height - reach < floor:
         # The distal end dips to axis_height + reach * cos(angle); keep it above the floor.

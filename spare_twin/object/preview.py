@@ -28,7 +28,7 @@ def render_preview(
         )
         pb.createMultiBody(baseVisualShapeIndex=table, basePosition=[0, 0, -0.002], physicsClientId=client)
         origins = poses[:, :3, 3]
-        tips = np.array([p[:3, 3] + p[:3, 2] * spec.link_lengths_m[k] * spec.print_scale for k, p in enumerate(poses)])
+        tips = np.array([p[:3, 3] + p[:3, 2] * spec.link_lengths_pu[k] * spec.print_scale for k, p in enumerate(poses)])
         pts = np.vstack([origins, tips, [[0, 0, 0]]])
         target = (pts.min(0) + pts.max(0)) / 2
         extent = float(np.linalg.norm(pts.max(0) - pts.min(0)))

@@ -43,7 +43,7 @@ class MotionConfig:
 
 def random_motion(
     limits_rad: np.ndarray,
-    lengths_phys_m: np.ndarray,
+    lengths_m: np.ndarray,
     keepout_height_m: float,
     half_width_m: float,
     rng: np.random.Generator,
@@ -51,7 +51,7 @@ def random_motion(
 ) -> np.ndarray:
     """(n_frames, n) joint angles: smooth, within limits, every link above the keep-out height."""
     limits = np.asarray(limits_rad, dtype=np.float64).reshape(-1, 2)
-    lengths = np.asarray(lengths_phys_m, dtype=np.float64)
+    lengths = np.asarray(lengths_m, dtype=np.float64)
     n = len(limits)
     if len(lengths) != n + 1:
         raise SpareTwinError(f"motion: {n} joints need {n + 1} link lengths, got {len(lengths)}")

@@ -108,7 +108,7 @@ def render_recording(
     K = rig.K(W, H)
     angles = random_motion(
         obj.joint_limits_rad,
-        obj.link_lengths_phys_m,
+        obj.link_lengths_m,
         obj.keepout_height_m,
         obj.link_half_width_m,
         np.random.default_rng(cfg.seed),
@@ -168,7 +168,7 @@ def render_recording(
         gt = dict(
             joint_angles_rad=angles,
             T_world_link=link_poses,
-            link_lengths_m=np.asarray(obj.spec.link_lengths_m),
+            link_lengths_m=np.asarray(obj.spec.link_lengths_pu),
             n_links=np.asarray(obj.spec.n_links),
             print_scale=np.asarray(obj.spec.print_scale),
         )
