@@ -7,24 +7,25 @@ parser and sets `func`. Heavy libraries are imported inside the handlers, so `--
 from __future__ import annotations
 
 import argparse
-import importlib
 import sys
 
 from spare_twin import SpareTwinError, __version__
+from spare_twin.commands import (
+    bench,
+    capture,
+    compare,
+    dataset,
+    demo,
+    evaluate,
+    noise,
+    predict,
+    render,
+    train,
+)
+from spare_twin.commands import object as object_command
 
 #: Subcommand modules, in the order `--help` lists them.
-COMMAND_MODULES = [
-    "object",
-    "render",
-    "dataset",
-    "train",
-    "evaluate",
-    "predict",
-    "capture",
-    "compare",
-    "demo",
-    "bench",
-]
+COMMANDS = (object_command, render, noise, dataset, train, evaluate, predict, capture, compare, demo, bench)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -34,13 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"spare-twin {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"spare_twin.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"spare_twin.commands.{name}":
-                continue  # stage not built in this checkout
-            raise
+    for module in COMMANDS:
         module.register(sub)
     return parser
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -40,6 +41,11 @@ COLORS: dict[str, tuple[float, float, float]] = {
 BASE_LENGTH_RANGE = (1.3, 2.0)
 LINK_LENGTH_RANGE = (0.3, 1.0)
 MAX_TOTAL_LENGTH = 3.0
+
+
+def _is_seed(seed) -> bool:
+    # numpy integers count too: seeds are often derived with numpy (SeedSequence words)
+    return isinstance(seed, numbers.Integral) and not isinstance(seed, bool) and seed >= 0
 
 
 def _fail(field_name: str, problem: str) -> None:
@@ -75,6 +81,11 @@ class PartDims:
     socket_wall_mm: float = 3.0
     socket_fit_mm: float = 0.15
     """Clearance per side between the base post and its socket."""
+
+    @property
+    def layer_pitch_mm(self) -> float:
+        """Distance along the joint axes between the mid-planes of neighbouring links."""
+        return self.link_thickness_mm + self.layer_gap_mm
 
 
 @dataclass(frozen=True)
@@ -131,8 +142,7 @@ class ChainSpec:
 
     @property
     def layer_pitch_mm(self) -> float:
-        """Distance along the joint axes between the mid-planes of neighbouring links."""
-        return self.parts.link_thickness_mm + self.parts.layer_gap_mm
+        return self.parts.layer_pitch_mm
 
     def label_lengths(self) -> np.ndarray:
         """The paper's 7-slot length label (paper units), zeros past the last link."""
@@ -142,7 +152,7 @@ class ChainSpec:
 
     # -- JSON round trip -----------------------------------------------------------------
     def to_dict(self) -> dict:
-        # object.json names the paper-unit lengths `link_lengths_m` (DESIGN.md); the key keeps its place.
+        # object.json names the paper-unit lengths `link_lengths_m` (docs/design.md); the key keeps its place.
         d = {("link_lengths_m" if k == "link_lengths_pu" else k): v for k, v in dataclasses.asdict(self).items()}
         d["link_lengths_m"] = list(self.link_lengths_pu)
         d["colors"] = list(self.colors)
@@ -221,6 +231,8 @@ def validate(spec: ChainSpec) -> None:
         _fail("print_scale", f"{spec.print_scale} must be a positive number")
     if not spec.name or not all(ch.isalnum() or ch in "_-" for ch in spec.name):
         _fail("name", f"{spec.name!r} must be non-empty letters, digits, '_' or '-'")
+    if spec.seed is not None and not _is_seed(spec.seed):
+        _fail("seed", f"{spec.seed!r} must be a non-negative integer or null")
 
     p, pr = spec.parts, spec.printer
     for f in dataclasses.fields(p):
@@ -235,16 +247,9 @@ def validate(spec: ChainSpec) -> None:
         )
     if p.press_fit_mm >= p.pin_clearance_mm:
         _fail("parts.press_fit_mm", "must be smaller than pin_clearance_mm, or the pin turns in the child too")
-    walls = {
-        "wall beside the pin hole": (p.link_width_mm - (p.pin_diameter_mm + 2 * p.pin_clearance_mm)) / 2,
-        "wall beside the counterbore": (p.link_width_mm - counterbore_diameter_mm(p)) / 2,
-        "floor under the counterbore": p.link_thickness_mm - counterbore_depth_mm(p),
-        "pin head rim": (p.pin_head_diameter_mm - p.pin_diameter_mm) / 2,
-        "socket wall": p.socket_wall_mm,
-    }
-    for what, thickness in walls.items():
+    for key, thickness in design_walls_mm(p).items():
         if thickness < pr.min_wall_mm - 1e-9:
-            _fail("parts", f"{what} is {thickness:.2f} mm, below the {pr.min_wall_mm} mm minimum wall")
+            _fail("parts", f"{WALL_NAMES[key]} is {thickness:.2f} mm, below the {pr.min_wall_mm} mm minimum wall")
     if (
         p.spacer_ring_diameter_mm > p.link_width_mm
         or p.spacer_ring_diameter_mm <= p.pin_diameter_mm + 2 * pr.min_wall_mm
@@ -253,6 +258,10 @@ def validate(spec: ChainSpec) -> None:
             "parts.spacer_ring_diameter_mm",
             "must lie between the pin (plus a minimum wall each side) and the link width",
         )
+    for f in dataclasses.fields(pr):
+        v = getattr(pr, f.name)
+        if f.name != "infill" and not (math.isfinite(v) and v > 0):
+            _fail(f"printer.{f.name}", f"{v} must be positive")
     if not 0 <= pr.infill <= 1:
         _fail("printer.infill", f"{pr.infill} must be within 0..1")
     lengths_mm = spec.link_lengths_mm
@@ -262,7 +271,8 @@ def validate(spec: ChainSpec) -> None:
         if length_mm < min_between_axes_mm:
             _fail(
                 "link_lengths_m",
-                f"link {i} is {length_mm:.1f} mm between axes at this print_scale, below the {min_between_axes_mm:.1f} mm its joints need",
+                f"link {i} is {length_mm:.1f} mm between axes at this print_scale, "
+                f"below the {min_between_axes_mm:.1f} mm its joints need",
             )
     if lengths_mm[-1] < p.link_width_mm / 2:
         _fail(
@@ -282,6 +292,27 @@ def validate(spec: ChainSpec) -> None:
             f"{spec.print_scale} makes a {longest_mm:.0f} mm part that does not fit the "
             f"{pr.bed_x_mm:.0f} x {pr.bed_y_mm:.0f} mm bed",
         )
+
+
+#: The thinnest walls of the design, by their print_report.json key, and how an error names them.
+WALL_NAMES = {
+    "beside_pin_hole": "wall beside the pin hole",
+    "beside_counterbore": "wall beside the counterbore",
+    "under_counterbore": "floor under the counterbore",
+    "pin_head_rim": "pin head rim",
+    "socket_wall": "socket wall",
+}
+
+
+def design_walls_mm(p: PartDims) -> dict[str, float]:
+    """The design's thinnest walls (mm), keyed as in WALL_NAMES; each must reach the printer's minimum."""
+    return {
+        "beside_pin_hole": (p.link_width_mm - (p.pin_diameter_mm + 2 * p.pin_clearance_mm)) / 2,
+        "beside_counterbore": (p.link_width_mm - counterbore_diameter_mm(p)) / 2,
+        "under_counterbore": p.link_thickness_mm - counterbore_depth_mm(p),
+        "pin_head_rim": (p.pin_head_diameter_mm - p.pin_diameter_mm) / 2,
+        "socket_wall": p.socket_wall_mm,
+    }
 
 
 def counterbore_diameter_mm(p: PartDims) -> float:
@@ -309,6 +340,8 @@ def sample_chain(n_links: int | None = None, seed: int = 0, **overrides) -> Chai
 
     With `n_links=None`, the count is drawn uniformly from 1..6 with the same generator.
     """
+    if not _is_seed(seed):
+        raise SpareTwinError(f"seed {seed!r}: must be a non-negative integer")
     rng = np.random.default_rng(seed)
     if n_links is None:
         n_links = int(rng.integers(MIN_MOVING_LINKS, MAX_MOVING_LINKS + 1))

@@ -23,14 +23,14 @@ def test_recovers_joint_angles_within_5_degrees(object_dirs, n, seed):
     cloud += rng.normal(0.0, 0.001, cloud.shape)
     fit = fit_articulated(obj, cloud)
     assert _wrap_deg(fit.joint_angles_rad - q).max() < 5.0
-    assert np.hypot(*(fit.T_world_base[:2, 3] - [x, y])) < 0.005
-    assert _wrap_deg(np.arctan2(fit.T_world_base[1, 0], fit.T_world_base[0, 0]) - yaw) < 5.0
+    assert np.hypot(*(fit.T_object_base[:2, 3] - [x, y])) < 0.005
+    assert _wrap_deg(np.arctan2(fit.T_object_base[1, 0], fit.T_object_base[0, 0]) - yaw) < 5.0
     assert fit.inlier_fraction > 0.8
 
 
-def _depth_views(obj, q, T_world_base, count=6, width=160):
+def _depth_views(obj, q, T_object_base, count=6, width=160):
     """Depth images (4:3, `width` pixels wide) of the posed twin on its table from `count` cameras
-    round it, posed in the world frame."""
+    round it, posed in the object frame (the cloud's)."""
     from spare_twin.compare.depth_fit import DepthView
     from spare_twin.sim.rig import look_at
     from spare_twin.sim.twin import Twin
@@ -42,10 +42,10 @@ def _depth_views(obj, q, T_world_base, count=6, width=160):
         twin.load(obj)
         twin.set_joints(q)
         for a in np.linspace(0, 2 * np.pi, count, endpoint=False):
-            eye = T_world_base[:3, 3] + [0.4 * np.cos(a), 0.4 * np.sin(a), 0.25]
-            T_world_camera = look_at(eye, T_world_base[:3, 3] + [0, 0, 0.08])
-            frame = twin.render(np.linalg.inv(T_world_base) @ T_world_camera, K, width, height, 0.02, 3.0)
-            views.append(DepthView(frame.depth_m, K, T_world_camera))
+            eye = T_object_base[:3, 3] + [0.4 * np.cos(a), 0.4 * np.sin(a), 0.25]
+            T_object_camera = look_at(eye, T_object_base[:3, 3] + [0, 0, 0.08])
+            frame = twin.render(np.linalg.inv(T_object_base) @ T_object_camera, K, width, height, 0.02, 3.0)
+            views.append(DepthView(frame.depth_m, K, T_object_camera))
     return views
 
 
@@ -59,14 +59,14 @@ def test_depth_views_choose_the_fit_over_its_mirror_image(object_dirs):
     rng = np.random.default_rng(4)
     q = sample_pose(obj.spec, rng)
     truth = np.array([0.01, -0.02, 0.7, *q])
-    T_world_base = base_pose(*truth[:3])
-    poses = forward_kinematics(obj.spec, q, T_world_base)
+    T_object_base = base_pose(*truth[:3])
+    poses = forward_kinematics(obj.spec, q, T_object_base)
     cloud = np.vstack([p @ T[:3, :3].T + T[:3, 3] for p, T in zip(twin_surface_points(obj, 1500, seed=99), poses)])
     cloud += rng.normal(0.0, 0.004, cloud.shape)  # TSDF-like smear: as wide as a layer's half pitch
-    views = _depth_views(obj, q, T_world_base)
+    views = _depth_views(obj, q, T_object_base)
     fit = fit_articulated(obj, cloud, views=views)
     assert _wrap_deg(fit.joint_angles_rad - q).max() < 5.0
-    assert _wrap_deg(np.arctan2(fit.T_world_base[1, 0], fit.T_world_base[0, 0]) - truth[2]) < 3.0
+    assert _wrap_deg(np.arctan2(fit.T_object_base[1, 0], fit.T_object_base[0, 0]) - truth[2]) < 3.0
     assert fit.depth_error_m < 0.003
     # every refined candidate (two poses and their mirror images) was scored on depth, the kept one best
     assert len(fit.candidates) == 4 and all(c[1] > fit.depth_error_m for c in fit.candidates[1:])

@@ -28,7 +28,7 @@ def _iou(a, b):
 def test_table_and_background_match_the_twin():
     import cv2
 
-    from spare_twin.observe.canonical import BACKGROUND_GREY, TABLE_GREY, table_view
+    from spare_twin.observe.splat import BACKGROUND_GREY, TABLE_GREY, table_view
     from spare_twin.sim.rig import load_rig
     from spare_twin.sim.twin import Twin
 
@@ -74,8 +74,7 @@ def test_canonical_views_of_the_handheld_recording_match_the_rig_render(register
 
 def test_rig_recordings_take_the_no_op_path_and_other_rigs_the_sim_path(printed_object, tmp_path):
     from spare_twin.cli import main
-    from spare_twin.dataset.synthetic import RIG_NAME
-    from spare_twin.dataset.synthetic import rig as synthetic_rig
+    from spare_twin.dataset.synthetic import RIG_NAME, synthetic_rig
     from spare_twin.observe.canonical import resolve_rig, to_rig_views
     from spare_twin.recording import Recording
 
@@ -87,11 +86,13 @@ def test_rig_recordings_take_the_no_op_path_and_other_rigs_the_sim_path(printed_
     own = to_rig_views(rec, "spare8")
     assert own.method == "rig" and own.depth_m.shape == (1, 8, 96, 128)
     np.testing.assert_array_equal(own.depth_m[0, 3], rec.depth_m("cam3", 0))
-    # the synthetic ring is a Rig too, with the same cameras
-    K, poses = synthetic_rig()
+    # the synthetic ring's name resolves to the dataset's ring: 8 cameras 0.36 m out and 0.18 m up,
+    # the first at 22.5 deg, f = 125 px at 96 x 128
     ring = resolve_rig(RIG_NAME)
-    np.testing.assert_allclose(ring.K(), K, atol=1e-9)
-    np.testing.assert_allclose(ring.poses(), poses, atol=1e-9)
+    assert ring == synthetic_rig() and ring.n_cameras == 8
+    np.testing.assert_allclose(ring.K(), [[125.0, 0.0, 63.5], [0.0, 125.0, 47.5], [0.0, 0.0, 1.0]], atol=1e-9)
+    a = math.radians(22.5)
+    np.testing.assert_allclose(ring.poses()[0][:3, 3], [0.36 * math.cos(a), 0.36 * math.sin(a), 0.18], atol=1e-9)
     # spare8 simulation views re-rendered into the synthetic ring: no registration, world = canonical
     cv = to_rig_views(rec, RIG_NAME)
     assert cv.method == "sim-views" and cv.yaws_rad == (0.0,)

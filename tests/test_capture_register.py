@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from capture_helpers import APC
+from capture_helpers import APC, APC_FRAMES
 from conftest import run_cli
 
 
@@ -20,7 +20,7 @@ def registered(tmp_path_factory):
 
     root = tmp_path_factory.mktemp("apc") / "rec"
     rec = import_folder(APC, "7scenes", root, ImportOptions(progress=False))
-    reference = rec._poses["cam0"].copy()
+    reference = rec.camera_poses("cam0")
     out = register_recording(
         root, RegistrationConfig(loop_gaps_frames=(2, 3)), use_reference=False, find="auto", progress=False
     )
@@ -31,8 +31,8 @@ def test_register_recovers_reference_poses(registered):
     from spare_twin.capture.registration import relative_pose_errors
 
     root, reference, out = registered
-    poses = np.array(out["poses_camera_to_world"])
-    assert out["frames"] == ["000000", "000001", "000002", "000003"] and poses.shape == (4, 4, 4)
+    poses = out.poses_camera_to_world
+    assert out.frames == ("000000", "000001", "000002", "000003") and poses.shape == (4, 4, 4)
     assert np.allclose(poses[0], np.eye(4))  # world = the first camera when poses are unknown
     for gap in (1, 2, 3):  # 2, 4 and 6 positions apart in the original sequence (about 3.5 to 10 deg)
         E = relative_pose_errors(poses, reference, gap)
@@ -41,19 +41,41 @@ def test_register_recovers_reference_poses(registered):
 
 def test_register_writes_results_into_the_recording(registered):
     from spare_twin.capture.fusion import read_ply_points
-    from spare_twin.capture.pipeline import REFERENCE_POSES
-    from spare_twin.recording import Recording
+    from spare_twin.recording import REFERENCE_POSES, Recording
 
     root, reference, out = registered
     rec = Recording.open(root)
     rec.validate()
     assert rec.cameras[0].poses == "per_frame"
-    assert np.allclose(rec._poses["cam0"], np.array(out["poses_camera_to_world"]))
+    assert np.allclose(rec.camera_poses("cam0"), out.poses_camera_to_world)
     assert np.allclose(np.load(root / "cameras" / "cam0" / REFERENCE_POSES), reference)  # kept aside
+    assert np.allclose(rec.reference_poses("cam0"), reference)
     pts, cols = read_ply_points(root / "fused.ply")
     assert len(pts) > 5000 and cols.shape == pts.shape
     assert 0.2 < np.median(pts[:, 2]) < 0.7  # in the first camera's frame, the bin is in front of it
-    assert rec.meta["registration"]["used_reference"] is False
+    assert rec.registration == out.registration and rec.registration.used_reference is False
+
+
+def test_register_result_json_is_the_command_output(registered):
+    """`capture register --json` prints `RegisterResult.to_json()`: the keys it has always had."""
+    root, _, out = registered
+    res = out.to_json()
+    assert list(res) == [
+        "frames",
+        "poses_camera_to_world",
+        "camera",
+        "recording",
+        "used_reference",
+        "world",
+        "summary",
+        "fused",
+        "mesh",
+        "object",
+        "source_frames",
+    ]
+    assert res["recording"] == str(root) and res["camera"] == "cam0" and res["world"] == "first camera"
+    assert res["source_frames"] == [f"frame-{n:06d}" for n in APC_FRAMES]
+    assert json.loads(json.dumps(res)) == res  # plain JSON all the way down
 
 
 def test_register_cli_json_with_reference(registered, tmp_path, capsys):
@@ -92,9 +114,9 @@ def test_fuse_recording_boundary(registered, tmp_path):
     from spare_twin.recording import Recording
 
     root, _, out = registered
-    if out["object"] is None:
+    if out.registration.object is None:
         with pytest.raises(SpareTwinError, match="no object found"):
             fuse_recording(Recording.open(root))
     else:
         pts, cols, T = fuse_recording(Recording.open(root))
-        assert len(pts) == out["object"]["points"] and T.shape == (4, 4)
+        assert len(pts) == out.registration.object["points"] and T.shape == (4, 4)

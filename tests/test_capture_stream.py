@@ -65,3 +65,44 @@ def test_ctrl_c_before_any_frame_writes_nothing(tmp_path):
     with pytest.raises(SpareTwinError, match="no frames received"):
         stream_to_recording(_frames(0), _metadata(), tmp_path / "live", {"kind": "sensor"}, opts, None, lambda: 0.0)
     assert not (tmp_path / "live").exists() and not list(tmp_path.iterdir())
+
+
+class _CutOff:
+    """Depth that never arrives: Ctrl-C while the frame is being written (its colour is already on disk)."""
+
+    def __array__(self, dtype=None, copy=None):
+        raise KeyboardInterrupt
+
+
+def test_stream_writer_drops_a_frame_cut_off_half_way(tmp_path):
+    from spare_twin.recording import Camera, Recording, RecordingWriter
+
+    K = np.loadtxt(APC / "intrinsics.K.txt")
+    color = np.full((48, 64, 3), 200, np.uint8)
+    depth = np.full((48, 64), 700, np.uint16)
+    cam = Camera("cam0", 64, 48, K, None, "unknown")
+    with RecordingWriter(tmp_path / "s", [cam], None, 30.0, {"kind": "sensor"}, depth_scale=0.001) as w:
+        for t in (10.0, 10.5):
+            w.append(color, depth, t)
+        with pytest.raises(KeyboardInterrupt):
+            w.append(color, _CutOff(), 11.0)
+        assert w.frames_written == 2
+    rec = Recording.open(tmp_path / "s")
+    rec.validate()  # no colour picture without its depth
+    assert rec.n_frames == 2 and np.allclose(rec.timestamps_s, [0.0, 0.5])
+    assert np.array_equal(rec.depth_raw("cam0", 1), depth)
+
+
+def test_stream_writer_takes_one_camera_without_per_frame_poses(tmp_path):
+    from spare_twin.errors import SpareTwinError
+    from spare_twin.recording import Camera, RecordingWriter
+
+    K = np.eye(3)
+    moving = Camera("cam0", 64, 48, K, None, "per_frame")
+    with pytest.raises(SpareTwinError, match="stream of unknown length"):
+        RecordingWriter(tmp_path / "s", [moving], None, 30.0, {"kind": "sensor"})
+    fixed = Camera("cam0", 64, 48, K, np.eye(4), "fixed")
+    with pytest.raises(SpareTwinError, match="append is for streams"):
+        with RecordingWriter(tmp_path / "f", [fixed], 1, 30.0, {"kind": "sensor"}) as w:
+            w.append(np.zeros((48, 64, 3), np.uint8), np.zeros((48, 64), np.uint16), 0.0)
+    assert not (tmp_path / "f").exists() and not list(tmp_path.iterdir())

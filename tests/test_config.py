@@ -68,6 +68,8 @@ def test_label_has_seven_slots():
         (dict(printer={"bed_x_mm": 90, "bed_y_mm": 90}), "does not fit"),
         (dict(parts={"link_width_mm": 7.5}), "minimum wall"),
         (dict(link_lengths_m=[1.5, 0.5], colors=["red"]), "colors: needs n_links + 1 = 2"),
+        (dict(printer={"bed_x_mm": -200}), "printer.bed_x_mm: -200.0 must be positive"),
+        (dict(seed=-3), "seed: -3 must be a non-negative integer"),
     ],
 )
 def test_bad_configurations_are_rejected_with_one_line(change, message):
@@ -84,3 +86,8 @@ def test_bad_configurations_are_rejected_with_one_line(change, message):
 def test_unknown_keys_are_rejected():
     with pytest.raises(SpareTwinError, match="unknown key"):
         ChainSpec.from_dict(dict(n_links=1, link_lengths_m=[1.5, 0.5], colors=["red", "blue"], lenghts=[1]))
+
+
+def test_sampling_rejects_a_negative_seed_naming_the_parameter():
+    with pytest.raises(SpareTwinError, match=r"^seed -1: must be a non-negative integer$"):
+        sample_chain(2, seed=-1)

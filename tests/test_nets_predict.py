@@ -53,12 +53,13 @@ def test_predict_json(trained, tmp_path, capsys):
 def test_predict_resizes_views_and_keeps_geometry(trained, tmp_path):
     """A 2x-resolution recording of the same scene gives the same network input geometry."""
     from spare_twin.nets import checkpoint as ckpt
-    from spare_twin.nets.predict import recording_sample
+    from spare_twin.nets.predict import input_spec, to_batch
+    from spare_twin.observe.network_input import recording_input
     from spare_twin.recording import Recording
 
     _, net, _ = ckpt.load_model(trained / "model.pt")
-    small = recording_sample(Recording.open(_write_recording(tmp_path / "a")[0]), net)
-    big = recording_sample(Recording.open(_write_recording(tmp_path / "b", scale_up=2)[0]), net)
+    small = to_batch([recording_input(Recording.open(_write_recording(tmp_path / "a")[0]), input_spec(net))])
+    big = to_batch([recording_input(Recording.open(_write_recording(tmp_path / "b", scale_up=2)[0]), input_spec(net))])
     assert big["x"].shape == small["x"].shape == (1, 8, 96, 128)
     np.testing.assert_allclose(big["K"].numpy(), small["K"].numpy(), atol=1e-4)
     agree = (np.abs(big["x"].numpy() - small["x"].numpy()) < 0.01).mean()
@@ -104,3 +105,9 @@ def test_fit_view_samples_where_its_intrinsics_say():
     u2, v2 = np.meshgrid(np.arange(128), np.arange(96))
     np.testing.assert_allclose((out_u - K[0, 2]) / K[0, 0], (u2 - K2[0, 2]) / K2[0, 0], atol=1e-9)
     np.testing.assert_allclose((out_v - K[1, 2]) / K[1, 1], (v2 - K2[1, 2]) / K2[1, 1], atol=1e-9)
+
+
+def test_predict_names_the_flag_of_a_bad_frame(trained, tmp_path, capsys):
+    rec, _ = _write_recording(tmp_path / "rec")
+    code, out, err = run_cli(["predict", str(rec), "--model", str(trained / "model.pt"), "--frame", "9"], capsys)
+    assert code == 1 and out == "" and err.strip().splitlines()[-1].endswith("--frame 9: the recording has frames 0..1")

@@ -71,6 +71,8 @@ def test_preview_shows_the_object(tmp_path, capsys):
         (["--links", "2", "--bed", "80x80"], "does not fit"),
         (["--links", "2", "--bed", "big"], "--bed"),
         (["--config", "missing.json"], "missing.json: no such file"),
+        (["--links", "2", "--seed", "-1"], "--seed -1: must be a non-negative integer"),
+        (["--links", "2", "--bed", "0x200"], "printer.bed_x_mm: 0.0 must be positive"),
     ],
 )
 def test_bad_input_is_one_line_and_keeps_existing_output(tmp_path, capsys, argv, message):

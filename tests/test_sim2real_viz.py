@@ -9,8 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from spare_twin.compare.sim_vs_real import score
+from spare_twin.compare.result import score
 from spare_twin.compare.table import sim2real_table, table_markdown, write_table
+
+
+def _score(truth, pred):
+    """`score` of two JSON-like sides, as `compare --json` stores it."""
+    return score(truth["n_links"], truth["link_lengths_m"], pred["n_links"], pred["link_lengths_m"]).to_json()
 
 
 def _result(n, sim_n, real_n, angle_err=None):
@@ -21,17 +26,17 @@ def _result(n, sim_n, real_n, angle_err=None):
         "truth": truth,
         "sim": sim,
         "real": real,
-        "errors": {"sim": score(truth, sim), "real": score(truth, real), "joint_angles_deg": angle_err},
+        "errors": {"sim": _score(truth, sim), "real": _score(truth, real), "joint_angles_deg": angle_err},
     }
 
 
 def test_score_uses_the_end_to_end_rule():
     truth = {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4]}
-    exact = score(truth, {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4]})
+    exact = _score(truth, {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4]})
     assert exact["count_correct"] and exact["E_L"] == pytest.approx(0.0)
     # One link missing: its squared length is the error; one invented: likewise.
-    assert score(truth, {"n_links": 1, "link_lengths_m": [1.5, 0.5]})["E_L"] == pytest.approx(0.16)
-    extra = score(truth, {"n_links": 3, "link_lengths_m": [1.5, 0.5, 0.4, 0.3]})
+    assert _score(truth, {"n_links": 1, "link_lengths_m": [1.5, 0.5]})["E_L"] == pytest.approx(0.16)
+    extra = _score(truth, {"n_links": 3, "link_lengths_m": [1.5, 0.5, 0.4, 0.3]})
     assert not extra["count_correct"] and extra["E_L"] == pytest.approx(0.09)
     assert extra["per_link_m"] == pytest.approx([0, 0, 0, 0.3])
 
@@ -104,3 +109,52 @@ def test_comparison_rrd_verifies(tmp_path):
         "/sim/frame/color",
     ):
         assert entity in res.stdout, entity
+
+
+def _prediction(n, lengths, angles=None, method="posed"):
+    from spare_twin.nets.predict import Prediction
+
+    probabilities = tuple(0.9 if k == n - 1 else 0.02 for k in range(6))
+    return Prediction(n, tuple(lengths), probabilities, angles, method, (0.0, 90.0), 90.0, "m.pt", "rec")
+
+
+def test_comparison_json_is_the_compare_object():
+    from dataclasses import replace
+
+    from spare_twin.compare.articulated import ArticulatedFit
+    from spare_twin.compare.result import SIDE_KEYS, Comparison, Truth
+    from spare_twin.object.kinematics import base_pose
+
+    truth = Truth(2, (1.5, 0.5, 0.4), (0.1, -0.2))
+    fit = ArticulatedFit(base_pose(0.01, 0.02, 0.3), np.array([0.1 + np.radians(2.0), -0.2]), 0.002, 0.9, 0.001)
+    T_world_object = np.eye(4)
+    T_world_object[:3, 3] = [0.1, 0.2, 0.0]
+    sim = _prediction(2, (1.5, 0.5, 0.4), angles=(0.1, -0.2))
+    real = _prediction(1, (1.4, 0.5))
+    own = _prediction(2, (1.5, 0.5, 0.3), method="fused")
+    c = Comparison(truth, sim, real, own, fit, T_world_object, Path("rec_sim_twin"), {"version": "x"})
+    j = json.loads(json.dumps(c.to_json()))
+    assert list(j) == [
+        "truth",
+        "sim",
+        "real",
+        "real_estimated_frame",
+        "registration",
+        "errors",
+        "sim_recording",
+        "model",
+        "settings",
+    ]
+    assert j["truth"] == {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4], "joint_angles_rad": [0.1, -0.2]}
+    # every side keeps the same keys, null where the model says nothing (here: no joint angles)
+    assert list(j["sim"]) == list(SIDE_KEYS) and j["real"]["joint_angles_rad"] is None
+    assert j["real_estimated_frame"]["input"] == "fused" and j["real_estimated_frame"]["yaw_deg"] == 90.0
+    assert j["errors"]["real"] == _score(j["truth"], j["real"]) and j["errors"]["sim"]["E_L"] == 0.0
+    assert j["errors"]["joint_angles_deg"] == pytest.approx([2.0, 0.0])
+    # the twin's base in the real recording's world: object frame then base in the object frame
+    np.testing.assert_allclose(j["registration"]["T_world_base"], T_world_object @ fit.T_object_base)
+    assert j["model"] == "m.pt" and j["sim_recording"] == "rec_sim_twin" and "rrd" not in j
+    assert replace(c, rrd="out.rrd").to_json()["rrd"] == "out.rrd"
+    lines = c.summary().splitlines()
+    assert lines[0].split() == ["truth", "n", "=", "2", "lengths", "[1.500,", "0.500,", "0.400]"]
+    assert "count WRONG" in lines[2] and lines[-1].endswith("error 2.0, 0.0 deg")

@@ -3,6 +3,7 @@
 import json
 
 import numpy as np
+import pytest
 
 from spare_twin.cli import main
 from spare_twin.object import folder as objects
@@ -38,3 +39,26 @@ def test_render_bad_object_dir_is_one_line_error(tmp_path, capsys):
     assert main(["render", str(tmp_path / "nope"), "--out", str(tmp_path / "rec")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "nope" in err[0]
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--frames", "0"], "--frames 0: must be a whole number, at least 1"),
+        (["--fps", "-1"], "--fps -1.0: must be a positive number"),
+        (["--fps", "inf"], "--fps inf: must be a positive number"),
+        (["--seed", "-1"], "--seed -1: must be a non-negative integer"),
+        (["--resolution", "8x8"], "--resolution '8x8': width and height must be within 16..4096"),
+        (["--rig", "nope"], "--rig 'nope': no such rig"),
+        (["--noise", "nope"], "--noise 'nope': no such noise model"),
+        (["--hide-poses"], "--hide-poses: only for a hand-held path"),
+    ],
+)
+def test_bad_options_are_one_line_errors_naming_the_flag(tmp_path, capsys, argv, message):
+    from spare_twin.config import sample_chain
+
+    obj = objects.build_sim_twin(sample_chain(1, 0), tmp_path / "obj")
+    assert main(["render", str(obj.root), "--out", str(tmp_path / "rec"), *argv]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message in err, err
+    assert not (tmp_path / "rec").exists()

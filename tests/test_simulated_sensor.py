@@ -2,8 +2,6 @@
 writes a recording like a real hand-held capture, and the real-capture chain (register, fuse, find the
 object) runs on it."""
 
-import json
-
 import numpy as np
 from conftest import FRAMES, run_cli
 
@@ -82,6 +80,7 @@ def test_render_sensor_options_and_errors(printed_object, tmp_path, capsys):
 
 def test_register_finds_the_object_on_the_simulated_sensor(registered_rec, printed_object):
     from spare_twin.capture.pipeline import fuse_recording
+    from spare_twin.recording import Recording
 
     root, res = registered_rec
     assert res["object"] is not None and res["used_reference"] is True
@@ -90,4 +89,4 @@ def test_register_finds_the_object_on_the_simulated_sensor(registered_rec, print
     assert len(pts) > 500 and pts[:, 2].max() > 0.8 * height
     assert abs(T_wo[2, 3]) < 0.005 and T_wo[2, 2] > 0.999  # the table is z = 0 of the sim world
     assert np.linalg.norm(np.median(pts[:, :2], axis=0)) < 0.1  # near the base, which stands at the origin
-    assert json.loads((root / "recording.json").read_text())["registration"]["object"]["points"] == len(pts)
+    assert Recording.open(root).registration.object["points"] == len(pts)

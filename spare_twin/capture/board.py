@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
+from spare_twin.io import read_json, write_bytes_atomic
 
 T_WORLD_BOARD = np.diag([1.0, -1.0, -1.0, 1.0])
 MM_PER_INCH = 25.4
@@ -68,8 +69,6 @@ class BoardSpec:
 
     @classmethod
     def load(cls, path: str | Path) -> BoardSpec:
-        from spare_twin.io import read_json
-
         d = read_json(path)
         try:
             return cls(**{k: d[k] for k in ("squares_x", "squares_y", "square_m", "marker_m", "dictionary") if k in d})
@@ -114,8 +113,6 @@ def write_board(spec: BoardSpec, out_dir: str | Path) -> dict[str, Path]:
     import io
 
     from PIL import Image
-
-    from spare_twin.io import write_bytes_atomic
 
     out_dir = Path(out_dir)
     page = Image.fromarray(board_page(spec))

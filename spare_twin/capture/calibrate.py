@@ -1,4 +1,4 @@
-"""Calibrate a recording's cameras with the ChArUco board (see `calibration`) and store the poses."""
+"""Calibrate a recording's cameras with the ChArUco board (see `board`) and store the poses."""
 
 from __future__ import annotations
 
@@ -6,23 +6,21 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.board import BoardSpec, board_pose, detect_board, refine_with_depth
 from spare_twin.errors import SpareTwinError
+from spare_twin.recording import Recording, update_recording
 
 
-def calibrate_recording(root: str | Path, spec, frame: int | None = None, use_depth: bool = True) -> dict:
+def calibrate_recording(root: str | Path, spec: BoardSpec, frame: int | None = None, use_depth: bool = True) -> dict:
     """Each camera's fixed pose from the board (world = board on the table, z up), written atomically.
 
     Cameras with per-frame poses (a moving camera) are left alone. With `frame` None, the frame with
     the most detected corners (of up to 30 spread over the recording) is used.
     """
-    from spare_twin.capture.board import board_pose, detect_board, refine_with_depth
-    from spare_twin.capture.store import update_recording
-    from spare_twin.recording import Recording
-
     rec = Recording.open(root)
     rec.validate()
     if frame is not None and not 0 <= frame < rec.n_frames:
-        raise SpareTwinError(f"--frame {frame}: out of range 0..{rec.n_frames - 1}")
+        raise SpareTwinError(f"frame {frame}: out of range 0..{rec.n_frames - 1}")
     results, cams = [], []
     for c in rec.cameras:
         if c.poses == "per_frame":

@@ -31,18 +31,18 @@ def check_depth(depth_u16: np.ndarray, depth_scale: float, source: str | Path) -
     if not lo <= median_m <= hi:
         raise SpareTwinError(
             f"{source}: median depth {median_m:.3g} m with depth scale {depth_scale:g} m/unit is outside "
-            f"{lo:g}..{hi:g} m; wrong --depth-scale?"
+            f"{lo:g}..{hi:g} m; wrong depth_scale?"
         )
 
 
-def parse_intrinsics_arg(text: str) -> np.ndarray:
+def parse_intrinsics_arg(intrinsics: str) -> np.ndarray:
     """`fx,fy,cx,cy` (pixels) to a 3x3 K."""
     try:
-        fx, fy, cx, cy = (float(v) for v in text.split(","))
+        fx, fy, cx, cy = (float(v) for v in intrinsics.split(","))
     except ValueError:
-        raise SpareTwinError(f"--intrinsics {text!r}: expected fx,fy,cx,cy in pixels") from None
+        raise SpareTwinError(f"intrinsics {intrinsics!r}: expected fx,fy,cx,cy in pixels") from None
     if fx <= 0 or fy <= 0:
-        raise SpareTwinError(f"--intrinsics {text!r}: focal lengths must be positive")
+        raise SpareTwinError(f"intrinsics {intrinsics!r}: focal lengths must be positive")
     return K_from(fx, fy, cx, cy)
 
 
@@ -92,7 +92,7 @@ def load_frames(rec, cam: str, frames: list[int] | None = None) -> list[RGBDFram
     out = []
     for f in frames:
         color = rec.color(cam, f)
-        depth = rec._checked(cam, "depth", f)  # raw uint16: no float round trip
+        depth = rec.depth_raw(cam, f)  # raw uint16: no float round trip
         check_depth(depth, rec.depth_scale, rec.path(cam, "depth", f))
         out.append(RGBDFrame(color, depth, rec.depth_scale, c.K))
     return out
@@ -155,7 +155,7 @@ def rotation_error_deg(R: np.ndarray) -> float:
 
 
 def quiet_open3d():
-    """Import open3d with its console messages limited to errors (they go to stdout, which --json owns)."""
+    """Import open3d with its console messages limited to errors (they go to stdout, which JSON output owns)."""
     import open3d as o3d
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)

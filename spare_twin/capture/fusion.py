@@ -8,6 +8,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spare_twin.errors import SpareTwinError
+
 
 @dataclass(frozen=True)
 class FusionConfig:
@@ -21,7 +23,8 @@ class FusionConfig:
     min_weight: float = 1.0
     """keep surface voxels observed at least this many times."""
     block_count: int = 20000
-    """initial voxel-block capacity (8^3 voxels each, about 10 kB): 20000 blocks cover a table-top scene at 4 mm; open3d grows the grid when needed."""
+    """initial voxel-block capacity (8^3 voxels each, about 10 kB): 20000 blocks cover a table-top scene
+    at 4 mm; open3d grows the grid when needed."""
 
 
 @dataclass
@@ -118,8 +121,6 @@ def mesh_ply_bytes(mesh) -> bytes:
 def read_ply_points(path) -> tuple[np.ndarray, np.ndarray]:
     """Points and colours (0..1) of a PLY cloud."""
     import open3d as o3d
-
-    from spare_twin.errors import SpareTwinError
 
     pc = o3d.io.read_point_cloud(str(path))
     if len(pc.points) == 0:

@@ -1,14 +1,14 @@
 """Importers: public RGB-D layouts into a recording (`spare_twin.recording`).
 
-Layouts (`spare-twin capture import SRC --layout ...`):
+Layouts (`import_folder(src, layout, out)`; `spare-twin capture import SRC --layout ...`):
 
 - ``7scenes``  7-Scenes / tsdf-fusion: ``frame-NNNNNN.color.png|jpg``, ``frame-NNNNNN.depth.png``
   (uint16 mm; 65535 = no reading in 7-Scenes), optional ``frame-NNNNNN.pose.txt`` (4x4
   camera-to-world), an intrinsics file (``intrinsics.K.txt`` / ``camera-intrinsics.txt``) or
-  ``--intrinsics``. Depth scale 0.001.
+  ``ImportOptions.K``. Depth scale 0.001.
 - ``tum``  TUM RGB-D: ``rgb.txt`` / ``depth.txt`` (timestamp + file) with ``rgb/`` and ``depth/``,
   associated by nearest timestamp; optional ``groundtruth.txt`` (tx ty tz qx qy qz qw). Also the bare
-  pair naming ``N.png`` + ``N_depth.png``. Depth scale 1/5000. Intrinsics from ``--intrinsics``.
+  pair naming ``N.png`` + ``N_depth.png``. Depth scale 1/5000. Intrinsics from ``ImportOptions.K``.
 - ``open3d``  the folder Open3D's RealSense recorder / ``RSBagReader.save_frames`` writes:
   ``color/*.jpg|png``, ``depth/*.png``, ``camera_intrinsic.json`` or ``intrinsic.json``.
 - ``bag``  a RealSense ``.bag`` file, replayed through ``open3d.t.io.RSBagReader``.
@@ -28,7 +28,10 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.capture.frames import K_from, check_depth, read_K_txt, read_pose_txt
+from spare_twin.capture.record import stream_to_recording
 from spare_twin.errors import SpareTwinError
+from spare_twin.io import encode_png, read_json, read_png
+from spare_twin.recording import Camera, Recording, RecordingWriter
 
 LAYOUTS = ("7scenes", "tum", "open3d", "bag")
 TUM_DEPTH_SCALE = 1.0 / 5000.0
@@ -96,9 +99,8 @@ def list_7scenes(src: Path) -> Source:
         raise SpareTwinError(f"{src}: no frame-NNNNNN.color.png / .depth.png files (not a 7-Scenes layout?)")
     for n in sorted(colors):
         if n not in depths:
-            raise SpareTwinError(
-                f"{src / colors[n].name.replace('.color.png', '.depth.png').replace('.color.jpg', '.depth.png')}: missing (colour frame {colors[n].name} has no depth)"
-            )
+            depth_name = colors[n].name.replace(".color.png", ".depth.png").replace(".color.jpg", ".depth.png")
+            raise SpareTwinError(f"{src / depth_name}: missing (colour frame {colors[n].name} has no depth)")
     for n in sorted(depths):
         if n not in colors:
             raise SpareTwinError(f"{depths[n]}: extra depth frame with no matching colour frame")
@@ -190,7 +192,8 @@ def list_tum(src: Path) -> Source:
     if any(f.T_world_camera is None for f in frames) and any(f.T_world_camera is not None for f in frames):
         n = sum(f.T_world_camera is None for f in frames)
         print(
-            f"warning: {src / 'groundtruth.txt'}: {n} frames have no pose within {TUM_MAX_DT_S} s; poses set to unknown",
+            f"warning: {src / 'groundtruth.txt'}: {n} frames have no pose within {TUM_MAX_DT_S} s; "
+            "poses set to unknown",
             file=sys.stderr,
         )
         frames = [FrameFiles(f.name, f.color, f.depth, None, f.timestamp_s) for f in frames]
@@ -236,8 +239,6 @@ def list_open3d(src: Path) -> Source:
     for name in ("camera_intrinsic.json", "intrinsic.json"):
         p = src / name
         if p.is_file():
-            from spare_twin.io import read_json
-
             meta = read_json(p)
             try:
                 m = np.asarray(meta["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T  # open3d: column-major
@@ -282,8 +283,6 @@ def _read_color(path: Path) -> tuple[np.ndarray, bytes | None]:
 
 
 def _read_depth(path: Path, invalid_value: int | None) -> np.ndarray:
-    from spare_twin.io import read_png
-
     d = read_png(path)
     if d.dtype != np.uint16 or d.ndim != 2:
         raise SpareTwinError(f"{path}: depth must be a single-channel 16-bit PNG, got {d.dtype} with shape {d.shape}")
@@ -298,7 +297,7 @@ def import_folder(src: str | Path, layout: str, out: str | Path, opts: ImportOpt
     if layout == "bag":
         return import_bag(src, out, opts)
     if layout not in LISTERS:
-        raise SpareTwinError(f"--layout {layout!r}: expected one of {', '.join(LAYOUTS)}")
+        raise SpareTwinError(f"layout {layout!r}: expected one of {', '.join(LAYOUTS)}")
     if not src.is_dir():
         raise SpareTwinError(f"{src}: not a folder")
     return write_source(LISTERS[layout](src), out, opts)
@@ -306,11 +305,11 @@ def import_folder(src: str | Path, layout: str, out: str | Path, opts: ImportOpt
 
 def _select(frames: list[FrameFiles], opts: ImportOptions) -> list[FrameFiles]:
     if opts.stride < 1:
-        raise SpareTwinError(f"--stride {opts.stride}: must be at least 1")
+        raise SpareTwinError(f"stride {opts.stride}: must be at least 1")
     frames = frames[:: opts.stride]
     if opts.max_frames is not None:
         if opts.max_frames < 1:
-            raise SpareTwinError(f"--max-frames {opts.max_frames}: must be at least 1")
+            raise SpareTwinError(f"max_frames {opts.max_frames}: must be at least 1")
         frames = frames[: opts.max_frames]
     return frames
 
@@ -319,20 +318,18 @@ def write_source(source: Source, out: str | Path, opts: ImportOptions):
     """Read, check and write every selected frame of `source` (atomically); returns the Recording."""
     from tqdm import tqdm
 
-    from spare_twin.io import encode_png
-    from spare_twin.recording import Camera, Recording, RecordingWriter
-
     frames = _select(source.frames, opts)
     K = opts.K if opts.K is not None else source.K
     if K is None:
-        raise SpareTwinError(f"{frames[0].color.parent}: no intrinsics file found; pass --intrinsics fx,fy,cx,cy")
+        raise SpareTwinError(f"{frames[0].color.parent}: no intrinsics file found; pass the intrinsics K")
     depth_scale = opts.depth_scale if opts.depth_scale is not None else source.depth_scale
     if not depth_scale > 0:
-        raise SpareTwinError(f"--depth-scale {depth_scale}: must be positive")
+        raise SpareTwinError(f"depth_scale {depth_scale}: must be positive")
     first, _ = _read_color(frames[0].color)
     h, w = first.shape[:2]
     if not (0 < K[0, 2] < w and 0 < K[1, 2] < h):
-        raise SpareTwinError(f"intrinsics: principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the {w}x{h} image")
+        where = "K:" if opts.K is not None else f"{frames[0].color.parent}: the intrinsics file's"
+        raise SpareTwinError(f"{where} principal point ({K[0, 2]:g}, {K[1, 2]:g}) lies outside the {w}x{h} image")
     has_poses = all(f.T_world_camera is not None for f in frames)
     camera = Camera("cam0", w, h, K, None, "per_frame" if has_poses else "unknown")
     times = [f.timestamp_s for f in frames]
@@ -384,8 +381,6 @@ def import_bag(path: str | Path, out: str | Path, opts: ImportOptions = ImportOp
     if not reader.open(str(path)):
         raise SpareTwinError(f"{path}: not a readable RealSense .bag file")
     try:
-        from spare_twin.capture.record import stream_to_recording
-
         md = reader.metadata
         frames = iter(lambda: None if reader.is_eof() else reader.next_frame(), None)
         return stream_to_recording(

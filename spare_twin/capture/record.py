@@ -15,7 +15,9 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.frames import K_from, check_depth
 from spare_twin.errors import SpareTwinError
+from spare_twin.recording import Camera, Recording, RecordingWriter
 
 
 @dataclass(frozen=True)
@@ -43,17 +45,17 @@ def _tensor_np(image) -> np.ndarray:
     return np.asarray(t.cpu().numpy() if hasattr(t, "cpu") else t)
 
 
-def stream_to_recording(frames, md, out, source: dict, opts, expected_frames: int | None, timestamp) -> object:
+def stream_to_recording(
+    frames, md, out: str | Path, source: dict, opts, expected_frames: int | None, timestamp
+) -> Recording:
     """Write open3d t.geometry.RGBDImage frames from `frames` (an iterator) into a recording.
 
     `md` is open3d's RGBDVideoMetadata (intrinsics, depth scale, fps). Stops at the end of the
-    iterator, after `opts.max_frames`, or on Ctrl-C (then keeps what was received).
+    iterator, after `opts.max_frames`, or on Ctrl-C (then keeps what was received). `opts` has
+    `max_frames`, `stride` and `progress` (an `ImportOptions`, or any object with them); `timestamp()`
+    gives the current frame's time in seconds.
     """
     from tqdm import tqdm
-
-    from spare_twin.capture.frames import K_from, check_depth
-    from spare_twin.capture.store import OpenEndedWriter
-    from spare_twin.recording import Camera, Recording
 
     Km = np.asarray(md.intrinsics.intrinsic_matrix, dtype=np.float64)
     width, height = int(md.width), int(md.height)
@@ -62,7 +64,7 @@ def stream_to_recording(frames, md, out, source: dict, opts, expected_frames: in
     limit = getattr(opts, "max_frames", None)
     stride = max(1, getattr(opts, "stride", 1))
     stopped = False
-    with OpenEndedWriter(out, camera, float(md.fps) / stride, source, depth_scale) as writer:
+    with RecordingWriter(out, [camera], None, float(md.fps) / stride, source, depth_scale=depth_scale) as writer:
         bar = tqdm(
             total=expected_frames,
             desc=f"{source.get('layout', 'record')}",
@@ -86,18 +88,18 @@ def stream_to_recording(frames, md, out, source: dict, opts, expected_frames: in
                     color = np.repeat(color[..., None], 3, axis=2)
                 if color.dtype != np.uint8:  # some streams deliver 16-bit colour
                     color = (color / 257).astype(np.uint8)
-                if writer.count == 0:
+                if writer.frames_written == 0:
                     check_depth(depth.astype(np.uint16), depth_scale, f"{source.get('path', 'sensor')} (first frame)")
-                writer.add(color[..., :3], depth.astype(np.uint16), timestamp())
+                writer.append(color[..., :3], depth.astype(np.uint16), timestamp())
                 bar.update(1)
-                if limit is not None and writer.count >= limit:
+                if limit is not None and writer.frames_written >= limit:
                     break
         except KeyboardInterrupt:
             stopped = True  # finalise below with every frame received so far
         finally:
             bar.close()
     if stopped:
-        print(f"stopped by Ctrl-C after {writer.count} frames; recording finalised", file=sys.stderr)
+        print(f"stopped by Ctrl-C after {writer.frames_written} frames; recording finalised", file=sys.stderr)
     return Recording.open(out)
 
 

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from spare_twin.capture.frames import o3d_intrinsic, rotation_error_deg, to_o3d_rgbd
 from spare_twin.errors import SpareTwinError
 
 
@@ -96,8 +97,6 @@ class RegistrationResult:
 
 def _cloud(frame, cfg: RegistrationConfig):
     import open3d as o3d
-
-    from spare_twin.capture.frames import o3d_intrinsic, to_o3d_rgbd
 
     h, w = frame.depth_u16.shape
     pc = o3d.geometry.PointCloud.create_from_rgbd_image(
@@ -241,7 +240,7 @@ def register_frames(
             if init_poses is None:
                 raise SpareTwinError(
                     f"registration: frames {a} and {a + 1} do not overlap (ICP fitness below "
-                    f"{cfg.min_fitness}); record more slowly or lower --voxel"
+                    f"{cfg.min_fitness}); record more slowly or lower voxel_m"
                 )
             continue
         edges.append(e)
@@ -283,8 +282,6 @@ def register_frames(
 
 def relative_pose_errors(poses: np.ndarray, reference: np.ndarray, gap: int) -> np.ndarray:
     """(M, 2): rotation error (deg) and translation error (mm) of every relative pose `gap` frames apart."""
-    from spare_twin.capture.frames import rotation_error_deg
-
     out = []
     for a in range(len(poses) - gap):
         est = np.linalg.inv(poses[a]) @ poses[a + gap]

@@ -23,6 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.fusion import read_ply_points
+from spare_twin.errors import SpareTwinError
+from spare_twin.recording import Recording
+
 
 @dataclass(frozen=True)
 class ViewConfig:
@@ -58,30 +62,25 @@ def log_recording(root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfi
     import rerun as rr
     from tqdm import tqdm
 
-    from spare_twin.capture.fusion import read_ply_points
-    from spare_twin.errors import SpareTwinError
-    from spare_twin.recording import Recording
-
     rec = Recording.open(root)
     rec.validate()
     if cfg.every < 1:
-        raise SpareTwinError(f"--every {cfg.every}: must be at least 1")
-    reg = rec.meta.get("registration") or {}
-    T_obj_world = np.eye(4)
-    if reg.get("object"):
-        T_obj_world = np.linalg.inv(np.asarray(reg["object"]["T_world_object"], np.float64))
+        raise SpareTwinError(f"every {cfg.every}: must be at least 1")
+    reg = rec.registration
+    has_object = reg is not None and reg.object is not None
+    T_obj_world = np.linalg.inv(reg.T_world_object) if has_object else np.eye(4)
     cams = [c.name for c in rec.cameras]
     rrd = Path(rrd)
     rrd.parent.mkdir(parents=True, exist_ok=True)
     tmp = rrd.with_name(f".{rrd.name}.tmp")
     stream = rr.RecordingStream("spare-twin-capture", recording_id=str(rec.root.resolve()))
     stream.save(tmp, default_blueprint=_blueprint(cams))
-    up = rr.ViewCoordinates.RIGHT_HAND_Z_UP if reg.get("object") else rr.ViewCoordinates.RIGHT_HAND_Y_DOWN
+    up = rr.ViewCoordinates.RIGHT_HAND_Z_UP if has_object else rr.ViewCoordinates.RIGHT_HAND_Y_DOWN
     stream.log("world", up, static=True)
     rng = np.random.default_rng(cfg.seed)
     logged = {"rrd": str(rrd), "cameras": cams, "frames": 0, "fused_points": 0, "object_points": 0}
-    for name, key in (("fused", "fused"), ("object", "object")):
-        rel = reg.get(key) if key == "fused" else (reg.get("object") or {}).get("file")
+    clouds = {} if reg is None else {"fused": reg.fused, "object": reg.object_file}
+    for name, rel in clouds.items():
         if rel and (rec.root / rel).is_file():
             pts, cols = read_ply_points(rec.root / rel)
             if len(pts) > cfg.max_points:
@@ -120,8 +119,7 @@ def log_recording(root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfi
                 f"{base}/color",
                 rr.EncodedImage(contents=rec.path(c.name, "color", f).read_bytes(), media_type="image/png"),
             )
-            depth = rec._checked(c.name, "depth", f)
-            stream.log(f"{base}/depth", rr.DepthImage(depth, meter=1.0 / rec.depth_scale))
+            stream.log(f"{base}/depth", rr.DepthImage(rec.depth_raw(c.name, f), meter=1.0 / rec.depth_scale))
         logged["frames"] += 1
     stream.flush()
     stream.disconnect()

@@ -7,6 +7,9 @@ from __future__ import annotations
 
 import json
 
+from spare_twin.commands.common import flags
+from spare_twin.errors import SpareTwinError
+
 
 def add_bench(sub) -> None:
     p = sub.add_parser("nets", help="network inference speed: samples/s and latency per sample")
@@ -24,31 +27,25 @@ def add_bench(sub) -> None:
 
 
 def run(args) -> int:
-    from spare_twin.errors import SpareTwinError
-    from spare_twin.nets.bench import bench_inference
+    from spare_twin.nets.bench import bench_network
 
     try:
         sizes = tuple(int(s) for s in args.batch_sizes.split(",") if s)
     except ValueError:
         raise SpareTwinError(f"--batch-sizes {args.batch_sizes!r}: expected integers like 1,16") from None
-    if args.preset:
-        from spare_twin.nets.models import build_model
-        from spare_twin.nets.presets import get_preset
-
-        net = get_preset(args.preset).net
-        model, name = build_model(net), args.preset
-    else:
-        from spare_twin.nets import checkpoint as ckpt
-
-        path = args.model or ckpt.default_model("predict")
-        model, net, _ = ckpt.load_model(path)
-        name = str(path)
-    res = bench_inference(model, net, sizes, iters=args.iters, threads=args.threads, device=args.device)
-    res["model"] = name
-    res["parameters"] = int(sum(p.numel() for p in model.parameters()))
+    with flags(
+        model="--model",
+        preset="--preset",
+        batch_sizes="--batch-sizes",
+        iters="--iters",
+        threads="--threads",
+        device="--device",
+    ):
+        res = bench_network(args.model, args.preset, sizes, args.iters, args.threads, args.device).to_json()
     if args.json:
         print(json.dumps(res))
     else:
+        name = res["model"]
         for bs, r in res["batch_sizes"].items():
             print(
                 f"{name} batch {bs}: {r['samples_per_s']:.1f} samples/s, {r['latency_ms_per_sample']:.1f} ms/sample "

@@ -3,8 +3,8 @@
 Draws OBJECTS chains from the paper's distribution with seeds SEED, SEED+1, ... (link counts cycling
 1..6; the training data draws its chains from other seeds), builds each printable object, captures it
 with the simulated hand-held sensor (`spare_twin.capture.simulated`: fitted RealSense noise, poses hidden,
-7-Scenes export, import, registration) and runs `compare --batch` over them (`spare_twin.compare.batch`). Interrupted runs resume:
-finished captures and comparisons (same model) are kept.
+7-Scenes export, import, registration) and runs `compare --batch` over them (`spare_twin.compare.batch`).
+Interrupted runs resume: finished captures and comparisons (same model) are kept.
 """
 
 from __future__ import annotations

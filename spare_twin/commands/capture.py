@@ -5,6 +5,27 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from spare_twin.commands.common import flags
+from spare_twin.errors import SpareTwinError
+
+
+@contextmanager
+def _flags(hints: dict[str, str] | None = None, **param_to_flag: str) -> Iterator[None]:
+    """`flags` (a message that starts with a parameter), plus `hints`: phrases further inside a message
+    that name a parameter ("...; wrong depth_scale?"), as this subcommand's user says them."""
+    try:
+        with flags(**param_to_flag):
+            yield
+    except SpareTwinError as exc:
+        message = str(exc)
+        for said, flag in (hints or {}).items():
+            message = message.replace(said, flag)
+        if message == str(exc):
+            raise
+        raise SpareTwinError(message) from None
 
 
 def _out(args, obj: dict, lines: list[str]) -> None:
@@ -162,15 +183,25 @@ def cmd_import(args: argparse.Namespace) -> int:
     from spare_twin.capture.importers import ImportOptions, import_folder
 
     progress = _progress(args)
-    opts = ImportOptions(
-        K=parse_intrinsics_arg(args.intrinsics) if args.intrinsics else None,
-        depth_scale=args.depth_scale,
-        fps=args.fps,
-        max_frames=args.max_frames,
-        stride=args.stride,
-        progress=progress,
-    )
-    rec = import_folder(args.src, args.layout, args.out, opts)
+    with _flags(
+        {"wrong depth_scale?": "wrong --depth-scale?", "pass the intrinsics K": "pass --intrinsics fx,fy,cx,cy"},
+        layout="--layout",
+        intrinsics="--intrinsics",
+        K="--intrinsics",
+        depth_scale="--depth-scale",
+        fps="--fps",
+        stride="--stride",
+        max_frames="--max-frames",
+    ):
+        opts = ImportOptions(
+            K=parse_intrinsics_arg(args.intrinsics) if args.intrinsics else None,
+            depth_scale=args.depth_scale,
+            fps=args.fps,
+            max_frames=args.max_frames,
+            stride=args.stride,
+            progress=progress,
+        )
+        rec = import_folder(args.src, args.layout, args.out, opts)
     cam = rec.cameras[0]
     _out(
         args,
@@ -195,7 +226,6 @@ def cmd_register(args: argparse.Namespace) -> int:
     from spare_twin.capture.fusion import FusionConfig
     from spare_twin.capture.pipeline import register_recording
     from spare_twin.capture.registration import RegistrationConfig
-    from spare_twin.errors import SpareTwinError
 
     progress = _progress(args)
     try:
@@ -210,23 +240,24 @@ def cmd_register(args: argparse.Namespace) -> int:
         seed=args.seed,
     )
     fus = FusionConfig(voxel_m=args.tsdf_voxel, sdf_trunc_m=4 * args.tsdf_voxel, max_depth_m=args.max_depth)
-    out = register_recording(
-        args.rec,
-        reg,
-        fus,
-        camera=args.camera,
-        use_reference=args.use_reference,
-        find=args.find,
-        mesh=args.mesh,
-        progress=progress,
-    )
-    obj = out.get("object")
+    with _flags({"lower voxel_m": "lower --voxel"}, find="--object"):
+        res = register_recording(
+            args.rec,
+            reg,
+            fus,
+            camera=args.camera,
+            use_reference=args.use_reference,
+            find=args.find,
+            mesh=args.mesh,
+            progress=progress,
+        )
+    summary, obj = res.registration.summary, res.registration.object
     _out(
         args,
-        out,
+        res.to_json(),
         [
-            f"registered {len(out['frames'])} frames of {out['recording']} ({out['summary']['edges']} edges)",
-            f"wrote {out['recording']}/fused.ply ({out['summary']['fused_points']} points)",
+            f"registered {len(res.frames)} frames of {res.recording} ({summary['edges']} edges)",
+            f"wrote {res.recording}/fused.ply ({summary['fused_points']} points)",
             f"object: {obj['points']} points, height {obj['height_m']:.3f} m" if obj else "object: none found",
         ],
     )
@@ -235,7 +266,6 @@ def cmd_register(args: argparse.Namespace) -> int:
 
 def cmd_board(args: argparse.Namespace) -> int:
     from spare_twin.capture.board import BoardSpec, write_board
-    from spare_twin.errors import SpareTwinError
 
     try:
         sx, sy = (int(v) for v in args.squares.lower().split("x"))
@@ -258,7 +288,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
     _progress(args)
     spec = BoardSpec.load(args.board) if args.board else BoardSpec()
-    out = calibrate_recording(args.rec, spec, frame=args.frame, use_depth=not args.no_depth)
+    with _flags(frame="--frame"):
+        out = calibrate_recording(args.rec, spec, frame=args.frame, use_depth=not args.no_depth)
     _out(
         args,
         out,
@@ -276,7 +307,8 @@ def cmd_view(args: argparse.Namespace) -> int:
     from spare_twin.capture.view import ViewConfig, log_recording
 
     progress = _progress(args)
-    out = log_recording(args.rec, args.rrd, ViewConfig(every=args.every), progress=progress)
+    with _flags(every="--every"):
+        out = log_recording(args.rec, args.rrd, ViewConfig(every=args.every), progress=progress)
     _out(
         args,
         out,

@@ -10,10 +10,20 @@ from spare_twin.errors import SpareTwinError
 
 @contextmanager
 def flags(**param_to_flag: str) -> Iterator[None]:
-    """Library errors name the parameter at fault ("seed -1: ..."); say it as the user typed it ("--seed -1: ...")."""
+    """Library errors name the parameter at fault ("seed -1: ..."); say it as the user typed it ("--seed -1: ...").
+
+    A message that starts with a parameter name (then a space or a colon) gets the flag in its place;
+    an output the output rule refuses names the flag that forces it (the `force` parameter's)."""
     try:
         yield
     except SpareTwinError as exc:
+        # spare_twin.output pulls in numpy (through io): imported only when there is an error to say
+        from spare_twin.output import OutputRefused
+
+        if isinstance(exc, OutputRefused):
+            if "force" not in param_to_flag:
+                raise
+            raise SpareTwinError(exc.message(param_to_flag["force"])) from None
         message = str(exc)
         for param, flag in param_to_flag.items():
             if message.startswith((f"{param} ", f"{param}:")):

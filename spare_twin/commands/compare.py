@@ -33,7 +33,7 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
-    from spare_twin.compare.sim_vs_real import compare, format_summary
+    from spare_twin.compare.sim_vs_real import compare
 
     if args.batch:
         return run_batch(args)
@@ -41,13 +41,13 @@ def run(args: argparse.Namespace) -> int:
         raise SpareTwinError("--object and --real are both needed (or --batch DIR)")
     result = compare(args.object, args.real, model=args.model, rrd=args.rrd, sim_dir=args.sim_out)
     if args.json:
-        print(json.dumps(result))
+        print(json.dumps(result.to_json()))
     else:
         print(f"compare {args.object} vs {args.real}:")
-        print(format_summary(result))
+        print(result.summary())
         print(
-            f"  twin recording: {result['sim_recording']}"
-            + (f"; Rerun: {result['rrd']} (open with `rerun {result['rrd']}`)" if args.rrd else "")
+            f"  twin recording: {result.sim_recording}"
+            + (f"; Rerun: {result.rrd} (open with `rerun {result.rrd}`)" if args.rrd else "")
         )
     return 0
 

@@ -1,8 +1,11 @@
-"""`spare-twin dataset --out DATA_DIR --instances K --seed S --workers W`: generate, resume or extend."""
+"""`spare-twin dataset --out DATA_DIR --instances K --seed S --workers W [--backend local|ray]
+[--ray-address ADDR]`: generate, resume or extend."""
 
 from __future__ import annotations
 
 import argparse
+
+from spare_twin.commands.common import flags
 
 
 def register(sub) -> None:
@@ -11,7 +14,8 @@ def register(sub) -> None:
         help="generate, resume or extend a SPARE dataset (sharded HDF5, manifest, train/val/test splits)",
         description="Render K sampled chains (balanced over n = 1..6) with the camera rig into DATA_DIR. Every "
         "sequence is a pure function of (seed, index): rerunning the same command after an interruption finishes "
-        "the dataset, and a larger --instances adds sequences without touching existing ones.",
+        "the dataset, and a larger --instances adds sequences without touching existing ones. The files are the same "
+        "bytes whatever --backend and --workers.",
     )
     p.add_argument("--out", required=True, metavar="DATA_DIR", help="dataset folder (created, resumed or extended)")
     p.add_argument(
@@ -22,7 +26,32 @@ def register(sub) -> None:
     )
     p.add_argument("--instances", type=int, help="number of sequences K")
     p.add_argument("--seed", type=int, help="dataset seed (default: 0)")
-    p.add_argument("--workers", type=int, default=1, help="parallel rendering processes (default: 1)")
+    p.add_argument(
+        "--workers",
+        type=int,
+        help="sequences rendered at once: local processes (default: 1), or Ray tasks (default: every CPU of the "
+        "Ray cluster)",
+    )
+    p.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="local: processes on this machine (default); ray: one Ray task per sequence, on the cluster at "
+        "--ray-address or on a Ray instance started here",
+    )
+    p.add_argument(
+        "--ray-address",
+        metavar="ADDR",
+        help="with --backend ray: the cluster's address (HOST:PORT of its head, or auto); default: start Ray here",
+    )
+    p.add_argument(
+        "--ray-shards",
+        choices=("driver", "workers"),
+        default="driver",
+        help="with --backend ray: who writes the sequence files: this process, from the bytes the tasks return "
+        "(default; --out need not be visible to the cluster), or the tasks themselves (--out must be on a file "
+        "system every node mounts at the same path)",
+    )
     p.add_argument("--frames", type=int, help="frames per sequence (default: 100)")
     p.add_argument("--rig", default="spare8", help="rig name in capture/rigs/ or a rig JSON file (default: spare8)")
     p.add_argument(
@@ -56,6 +85,8 @@ def run(args: argparse.Namespace) -> int:
     frames = args.frames if args.frames is not None else (preset.frames if preset else 100)
     if frames < 1:
         raise SpareTwinError("--frames must be at least 1")
+    if args.backend != "ray" and (args.ray_address is not None or args.ray_shards != "driver"):
+        raise SpareTwinError("--ray-address and --ray-shards need --backend ray")
     cfg = GenConfig(
         rig=load_rig(args.rig),
         frames=frames,
@@ -63,7 +94,24 @@ def run(args: argparse.Namespace) -> int:
         segmentation=not args.no_segmentation,
         randomization=SIM2REAL if args.sim2real else DomainRandomization(),
     )
-    r = generate_dataset(args.out, instances, seed, args.workers, cfg)
+    with flags(
+        instances="--instances",
+        seed="--seed",
+        workers="--workers",
+        backend="--backend",
+        ray_address="--ray-address",
+        shards="--ray-shards",
+    ):
+        r = generate_dataset(
+            args.out,
+            instances,
+            seed,
+            args.workers,
+            cfg,
+            backend=args.backend,
+            ray_address=args.ray_address,
+            shards=args.ray_shards,
+        )
     rate = r["generated_images"] / r["generate_s"] if r["generated"] else 0.0
     splits = ", ".join(f"{k} {v['sequences']} seq / {v['images']} img" for k, v in r["splits"].items())
     print(

@@ -6,6 +6,8 @@ import json
 import shlex
 import sys
 
+from spare_twin.commands.common import flags
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -38,37 +40,45 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from pathlib import Path
+    from spare_twin.nets.evaluate import evaluate_model
 
-    from spare_twin.nets import checkpoint as ckpt
-    from spare_twin.nets.evaluate import evaluate, record_metrics
-
-    model = args.model or ckpt.default_model("predict")
-    res = evaluate(
-        model, args.data, args.split, args.device, args.batch_size, args.out, args.max_samples, progress=True
-    )
-    res["data"] = str(args.data)
-    if args.ship:
-        import shutil
-        import tempfile
-
-        # record into a copy: the run's own model.pt stays as training wrote it
-        with tempfile.TemporaryDirectory() as tmp:
-            staged = Path(tmp) / "model.pt"
-            shutil.copyfile(model, staged)
-            record_metrics(staged, res, "spare-twin " + " ".join(shlex.quote(a) for a in sys.argv[1:]))
-            tasks = [t for t in args.default_for.split(",") if t]
-            res["shipped"] = str(ckpt.ship(staged, args.ship, tasks))
+    with flags(
+        model="--model",
+        model_path="--model",
+        data_dir="--data",
+        data="--data",
+        split="--split",
+        device="--device",
+        batch_size="--batch-size",
+        max_samples="--max-samples",
+        out_dir="--out",
+        name="--ship",
+        ship="--ship",
+        tasks="--default-for",
+        default_for="--default-for",
+    ):
+        ev = evaluate_model(
+            args.model,
+            args.data,
+            args.split,
+            args.device,
+            args.batch_size,
+            args.out,
+            args.max_samples,
+            ship=args.ship,
+            default_for=[t for t in args.default_for.split(",") if t],
+            command="spare-twin " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+        )
     if args.json:
-        print(json.dumps(res))
+        print(json.dumps(ev.to_json()))
     else:
-        acc = "n/a" if res["count_accuracy"] is None else f"{res['count_accuracy']:.4f}"
-        el = "n/a" if res["E_L"] is None else f"{res['E_L']:.4f}"
-        print(f"{res['split']}: {res['instances']} instances, count accuracy {acc}, E_L {el}")
-        for n, row in res["per_n"].items():
+        acc = "n/a" if ev.count_accuracy is None else f"{ev.count_accuracy:.4f}"
+        el = "n/a" if ev.E_L is None else f"{ev.E_L:.4f}"
+        print(f"{ev.split}: {ev.instances} instances, count accuracy {acc}, E_L {el}")
+        for n, row in ev.per_n.items():
             print(f"  n={n}: {row}")
-        if res.get("confusion_png"):
-            print(f"wrote {res['confusion_png']}")
-        if res.get("shipped"):
-            print(f"shipped {res['shipped']}")
+        if ev.confusion_png:
+            print(f"wrote {ev.confusion_png}")
+        if ev.shipped:
+            print(f"shipped {ev.shipped}")
     return 0

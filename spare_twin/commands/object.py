@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
+
+from spare_twin.commands.common import flags
+from spare_twin.errors import SpareTwinError
 
 
 def register(sub) -> None:
@@ -44,68 +46,54 @@ def register(sub) -> None:
     p.set_defaults(func=run)
 
 
-def _spec_from_args(args):
-    from spare_twin.config import ChainSpec, sample_chain
-    from spare_twin.errors import SpareTwinError
-
-    if args.config:
-        spec = ChainSpec.from_json_file(args.config)
-    else:
-        spec = sample_chain(args.links, seed=args.seed)
-    changes: dict = {}
-    if args.print_scale is not None:
-        changes["print_scale"] = args.print_scale
-    if args.name is not None:
-        changes["name"] = args.name
-    if args.clearance is not None:
-        changes["parts"] = dataclasses.replace(spec.parts, pin_clearance_mm=args.clearance)
-    if args.bed is not None:
-        try:
-            bx, by = (float(v) for v in args.bed.lower().split("x"))
-        except ValueError:
-            raise SpareTwinError(f"--bed: expected XxY in mm, e.g. 220x220, got {args.bed!r}") from None
-        changes["printer"] = dataclasses.replace(spec.printer, bed_x_mm=bx, bed_y_mm=by)
-    return dataclasses.replace(spec, **changes) if changes else spec
+def _bed_mm(text: str | None) -> tuple[float, float] | None:
+    if text is None:
+        return None
+    try:
+        bx, by = (float(v) for v in text.lower().split("x"))
+    except ValueError:
+        raise SpareTwinError(f"--bed: expected XxY in mm, e.g. 220x220, got {text!r}") from None
+    return bx, by
 
 
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from spare_twin.object.folder import build_object
+    from spare_twin.object.folder import BUILD_STEPS, make_object
 
-    spec = _spec_from_args(args)
-    steps = ["modelling parts", "writing STL files", "checking printability", "writing assembly notes"] + (
-        [] if args.no_preview else ["rendering preview"]
-    )
-    with tqdm(total=len(steps), desc="object", unit="step", file=sys.stderr, leave=False, disable=None) as bar:
+    steps = len(BUILD_STEPS) + (0 if args.no_preview else 1)
+    with (
+        tqdm(total=steps, desc="object", unit="step", file=sys.stderr, leave=False, disable=None) as bar,
+        flags(n_links="--links", seed="--seed", config="--config", out_dir="--out"),
+    ):
 
         def progress(what):
             bar.set_postfix_str(what)
             bar.update(1)
 
-        obj = build_object(spec, args.out, preview=not args.no_preview, progress=progress)
-    report = json.loads((obj.root / "print_report.json").read_text())
-    files = sorted(p.name for p in obj.root.iterdir() if p.is_file())
-    summary = {
-        "out": str(obj.root),
-        "n_links": spec.n_links,
-        "link_lengths_m": list(spec.link_lengths_pu),
-        "link_lengths_mm": [round(x, 3) for x in spec.link_lengths_mm],
-        "print_scale": spec.print_scale,
-        "urdf": obj.urdf_path.name,
-        "print_checks_passed": report["passed"],
-        "files": files,
-    }
+        made = make_object(
+            args.out,
+            n_links=args.links,
+            seed=args.seed,
+            config=args.config,
+            print_scale=args.print_scale,
+            clearance_mm=args.clearance,
+            bed_mm=_bed_mm(args.bed),
+            name=args.name,
+            preview=not args.no_preview,
+            progress=progress,
+        )
+    spec, obj = made.folder.spec, made.folder
     if args.json:
-        print(json.dumps(summary))
+        print(json.dumps(made.to_json()))
     else:
         print(
-            f"wrote {obj.root}/ ({len(files)} files): {spec.n_links} moving links, lengths "
+            f"wrote {obj.root}/ ({len(made.files)} files): {spec.n_links} moving links, lengths "
             + ", ".join(f"{x:.1f}" for x in spec.link_lengths_mm)
             + " mm"
         )
         print(
-            f"  URDF {obj.urdf_path.name}; print checks {'passed' if report['passed'] else 'FAILED'}; "
+            f"  URDF {obj.urdf_path.name}; print checks {'passed' if made.print_checks_passed else 'FAILED'}; "
             "see ASSEMBLY.md" + ("" if args.no_preview else " and preview.png")
         )
     return 0

@@ -9,8 +9,8 @@ def register(sub) -> None:
     p = sub.add_parser(
         "predict",
         help="count the moving links and measure them in a recording",
-        description="Run a network on a recording folder: n_links, link_lengths_pu (n + 1 values, base first, paper units) "
-        "and the count-class probabilities.",
+        description="Run a network on a recording folder: n_links, link_lengths_m (n + 1 values, base first, "
+        "paper units) and the count-class probabilities.",
     )
     p.add_argument("recording", metavar="REC_DIR", help="recording folder (recording.json)")
     p.add_argument("--model", metavar="CKPT", help="checkpoint (default: the shipped model in models/)")
@@ -34,21 +34,23 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from spare_twin.commands.common import flags
     from spare_twin.nets.predict import predict_recording
 
-    res = predict_recording(
-        args.recording,
-        args.model,
-        args.frame,
-        args.camera,
-        args.print_scale,
-        args.n_links,
-        args.device,
-        yaw_hypotheses=args.yaw_hypotheses,
-    )
+    with flags(frame="--frame", camera="--camera", n_links="--n-links", yaw_hypotheses="--yaw-hypotheses"):
+        res = predict_recording(
+            args.recording,
+            args.model,
+            args.frame,
+            args.camera,
+            args.print_scale,
+            args.n_links,
+            args.device,
+            yaw_hypotheses=args.yaw_hypotheses,
+        )
     if args.json:
-        print(json.dumps(res))
+        print(json.dumps(res.to_json()))
     else:
-        lengths = "n/a" if res["link_lengths_m"] is None else ", ".join(f"{v:.3f}" for v in res["link_lengths_m"])
-        print(f"{res['n_links']} moving links; lengths (paper units, base first): {lengths}")
+        lengths = "n/a" if res.link_lengths_pu is None else ", ".join(f"{v:.3f}" for v in res.link_lengths_pu)
+        print(f"{res.n_links} moving links; lengths (paper units, base first): {lengths}")
     return 0

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from spare_twin.commands.common import flags
+
 
 def register(sub) -> None:
     p = sub.add_parser(
@@ -58,7 +60,6 @@ def register(sub) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from spare_twin.commands.common import flags
     from spare_twin.sim.render import RenderConfig, render_recording
 
     cfg = RenderConfig(

@@ -1,10 +1,25 @@
-"""`spare-twin train`: train a kinematics network from a preset or a config."""
+"""`spare-twin train`: train a kinematics network from a preset or a config; under
+`torchrun --nproc-per-node N -m spare_twin train ...` data-parallel over N processes."""
 
 from __future__ import annotations
 
 import json
+import os
 import shlex
 import sys
+
+from spare_twin.commands.common import flags
+
+#: the train command's flags for the TrainConfig fields they override
+OVERRIDE_FLAGS = {
+    "epochs": "--epochs",
+    "batch_size": "--batch-size",
+    "lr": "--lr",
+    "seed": "--seed",
+    "samples_per_epoch": "--samples-per-epoch",
+    "workers": "--workers",
+    "threads": "--threads",
+}
 
 
 def register(sub) -> None:
@@ -13,7 +28,8 @@ def register(sub) -> None:
         help="train a link-count / link-length network from a preset or a config",
         description="Train a network on DATA_DIR's train split (validating on its val split), writing checkpoints "
         "(last.pt every epoch, best.pt, model.pt), history.json, learning_curve.png and MODEL_CARD.md into --out. "
-        "Interrupt at any time and continue with --resume.",
+        "Interrupt at any time and continue with --resume. Data-parallel: torchrun --nproc-per-node N -m spare_twin "
+        "train ... (gloo on CPUs, NCCL on GPUs; --batch-size is per process; rank 0 writes the run folder).",
     )
     p.add_argument("--preset", metavar="NAME", help="a preset (see --list-presets)")
     p.add_argument("--config", metavar="CFG_JSON", help='{"preset": NAME, "net": {...}, "train": {...}} overrides')
@@ -76,20 +92,28 @@ def run(args) -> int:
     if overrides:
         config = dict(config)
         config["train"] = {**config.get("train", {}), **overrides}
-    preset = resolve(args.preset, config, args.config or "--preset")
+    given = {f"train.{k}": OVERRIDE_FLAGS[k] for k in overrides}
+    with flags(**given):
+        preset = resolve(args.preset, config, args.config or "--preset")
+    from spare_twin.nets.distributed import is_main_process
     from spare_twin.nets.train import train
 
     command = "spare-twin " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv and "train" in sys.argv else ""
-    summary = train(
-        preset,
-        args.data,
-        args.out,
-        device=args.device,
-        on_the_fly=args.on_the_fly,
-        resume=args.resume,
-        command=command or _reconstruct(args),
-        progress=True,
-    )
+    if command and int(os.environ.get("WORLD_SIZE", "1")) > 1:
+        command = f"torchrun --nproc-per-node {os.environ.get('LOCAL_WORLD_SIZE', '?')} -m spare_twin" + command[10:]
+    with flags(data_dir="--data", out_dir="--out", resume="--resume", device="--device", **given):
+        summary = train(
+            preset,
+            args.data,
+            args.out,
+            device=args.device,
+            on_the_fly=args.on_the_fly,
+            resume=args.resume,
+            command=command or _reconstruct(args),
+            progress=True,
+        )
+    if not is_main_process():
+        return 0  # rank 0 prints
     if args.json:
         print(json.dumps(summary))
     else:

@@ -26,6 +26,7 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
+from spare_twin.compare.depth_fit import DepthScorer, DepthView
 from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import ObjectFolder
 from spare_twin.object.kinematics import (
@@ -37,6 +38,7 @@ from spare_twin.object.kinematics import (
     param_bounds,
     rot_y,
 )
+from spare_twin.object.urdf import load_urdf
 
 #: Distances beyond this count as "not explained" (metres): robust to clutter and fusion noise.
 TRUNCATE_M = 0.01
@@ -76,8 +78,8 @@ class FitConfig:
 
 @dataclass(frozen=True)
 class ArticulatedFit:
-    T_world_base: np.ndarray
-    """4x4 pose of the twin's base (link 0) in the cloud's frame."""
+    T_object_base: np.ndarray
+    """4x4 pose of the twin's base (link 0) in the cloud's frame: the object frame (z up, table z = 0)."""
     joint_angles_rad: np.ndarray
     """(n,) joint angles."""
     rmse_m: float
@@ -94,7 +96,7 @@ class ArticulatedFit:
     @property
     def params(self) -> np.ndarray:
         """(n + 3,) base x, y, yaw and the joint angles: the search's parameter vector."""
-        T = self.T_world_base
+        T = self.T_object_base
         return np.array([T[0, 3], T[1, 3], np.arctan2(T[1, 0], T[0, 0]), *self.joint_angles_rad])
 
 
@@ -102,8 +104,6 @@ def twin_link_meshes(obj: ObjectFolder) -> list:
     """Each link's printed parts as one trimesh in that link's frame (metres), read through the URDF:
     its visual STL files placed by their visual origins."""
     import trimesh
-
-    from spare_twin.object.urdf import load_urdf
 
     links = {l.name: l for l in load_urdf(obj.urdf_path).robot.links}
     out = []
@@ -140,12 +140,15 @@ def _truncated(d: np.ndarray) -> np.ndarray:
 
 
 def fit_articulated(
-    obj: ObjectFolder, points_world: np.ndarray, config: FitConfig = FitConfig(), views: list | None = None
+    obj: ObjectFolder,
+    points_object: np.ndarray,
+    config: FitConfig = FitConfig(),
+    views: list[DepthView] | None = None,
 ) -> ArticulatedFit:
-    """Fit the twin to `points_world` (see the module doc); `views` (`depth_fit.DepthView`: depth
+    """Fit the twin to `points_object` (see the module doc); `views` (`depth_fit.DepthView`: depth
     images of the same scene, posed in the cloud's frame) settle the fit by render and compare."""
     spec = obj.spec
-    points = np.asarray(points_world, dtype=np.float64).reshape(-1, 3)
+    points = np.asarray(points_object, dtype=np.float64).reshape(-1, 3)
     points = points[np.isfinite(points).all(axis=1)]
     if len(points) < 50:
         raise SpareTwinError(f"articulated registration needs an object cloud, got {len(points)} points")
@@ -184,8 +187,6 @@ def fit_articulated(
         candidates.append([_two_sided_cost(spec, link_points, cloud, points, res.x), None, res.x])
     view_corrections = []
     if views:
-        from spare_twin.compare.depth_fit import DepthScorer
-
         with DepthScorer(obj, views, config.depth_stride) as scorer:
             for c in candidates:
                 c[1] = scorer(c[2])
@@ -210,7 +211,7 @@ def fit_articulated(
     params = candidates[0][2]
     d = cKDTree(_posed(spec, link_points, params)).query(points)[0]
     return ArticulatedFit(
-        T_world_base=base_pose(*params[:3]),
+        T_object_base=base_pose(*params[:3]),
         joint_angles_rad=np.array(params[3:]),
         rmse_m=float(np.sqrt(np.mean(_truncated(d) ** 2))),
         inlier_fraction=float(np.mean(d < 0.005)),
@@ -236,27 +237,27 @@ def _unexplained(points: np.ndarray, link_surface: np.ndarray) -> np.ndarray:
     return points[cKDTree(link_surface).query(points)[0] > EXPLAINED_M]
 
 
-def _chain_search(spec, link_points, limits, points, T_world_base, config: FitConfig) -> list[np.ndarray]:
+def _chain_search(spec, link_points, limits, points, T_object_base, config: FitConfig) -> list[np.ndarray]:
     """Pose the chain link by link from its base, keeping a beam of the `beam_width` partial chains
     with the lowest summed link costs; each extends by the `branch` best local minima of its next
     link's cost over the angle grid. A link is scored against the points the links placed before it
     leave unexplained, so it cannot fold back onto its parent's points; a greedy pass (one branch)
     lets a short link settle on a later link's points and strands the rest of the chain."""
     keepout = keepout_height_m(spec)
-    base_world = link_points[0] @ T_world_base[:3, :3].T + T_world_base[:3, 3]
-    beam = [(0.0, np.zeros(spec.n_links + 3), T_world_base, _unexplained(points, base_world))]
+    base_points = link_points[0] @ T_object_base[:3, :3].T + T_object_base[:3, 3]
+    beam = [(0.0, np.zeros(spec.n_links + 3), T_object_base, _unexplained(points, base_points))]
     for k in range(1, spec.n_links + 1):
         grid = np.arange(limits[k - 1, 0], limits[k - 1, 1] + 1e-9, np.radians(config.angle_step_deg))
         children = []
         for total, params, T_parent, unexplained in beam:
             target = unexplained if len(unexplained) >= 10 else points
-            world = _link_at_angles(
+            posed = _link_at_angles(
                 link_points[k][: config.search_points_per_link], T_parent @ joint_origin(spec, k), grid
             )
-            d = cKDTree(target).query(world.reshape(-1, 3))[0].reshape(len(grid), -1)
+            d = cKDTree(target).query(posed.reshape(-1, 3))[0].reshape(len(grid), -1)
             cost = np.mean(_truncated(d) ** 2, axis=1)
             # The printed object cannot put a link through its foot: such angles are not candidates.
-            cost[world[:, :, 2].min(axis=1) < keepout - KEEPOUT_TOLERANCE_M] = np.inf
+            cost[posed[:, :, 2].min(axis=1) < keepout - KEEPOUT_TOLERANCE_M] = np.inf
             for i in _local_minima(cost)[: config.branch]:
                 child = params.copy()
                 child[2 + k] = grid[i]

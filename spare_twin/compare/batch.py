@@ -11,6 +11,8 @@ import json
 import sys
 from pathlib import Path
 
+from tqdm import tqdm
+
 from spare_twin.capture.simulated import SensorCaptureConfig, simulated_capture
 from spare_twin.compare.sim_vs_real import CompareConfig, compare
 from spare_twin.compare.table import sim2real_table, write_table
@@ -35,9 +37,8 @@ def pairs_in(root: str | Path) -> list[Path]:
 def compare_batch(
     root: str | Path, table_dir: str | Path, model: str | Path | None = None, progress: bool = True
 ) -> tuple[dict, dict[str, str]]:
-    """Compare every pair under `root`; returns the sim-to-real table and the files written to `table_dir`."""
-    from tqdm import tqdm
-
+    """Compare every pair under `root`; returns the sim-to-real table and the files written to `table_dir`.
+    Each pair's `Comparison.to_json()`, with its `name`, is kept in `<pair>/compare.json`."""
     pairs = pairs_in(root)
     if not pairs:
         raise SpareTwinError(f"batch {root}: no <name>/object and <name>/real folders in it")
@@ -48,8 +49,7 @@ def compare_batch(
         if done.is_file() and _reusable(read_json(done), model):
             results.append(read_json(done))
             continue
-        r = compare(d / "object", d / "real", model=model, sim_dir=d / "sim_twin")
-        r["name"] = d.name
+        r = {**compare(d / "object", d / "real", model=model, sim_dir=d / "sim_twin").to_json(), "name": d.name}
         write_json_atomic(done, r)
         results.append(r)
     table = sim2real_table(results)
@@ -69,8 +69,6 @@ def bench_sim2real(
 ) -> tuple[dict, dict[str, str]]:
     """Capture `objects` unseen chains (seeds seed, seed+1, ...; n cycling 1..6) with the simulated
     hand-held sensor into `out/n<N>_seed<S>/`, then `compare_batch` over them into `out`."""
-    from tqdm import tqdm
-
     if objects < 1:
         raise SpareTwinError(f"objects {objects}: need at least 1")
     if seed < 0:

@@ -19,9 +19,10 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spare_twin.capture.simulated import SensorCaptureConfig, simulated_capture
-from spare_twin.compare.sim_vs_real import compare, score, summary_row
+from spare_twin.compare.result import Comparison, summary_row
+from spare_twin.compare.sim_vs_real import compare
 from spare_twin.config import ChainSpec
-from spare_twin.nets.predict import predict_recording
+from spare_twin.nets.predict import Prediction, predict_recording
 from spare_twin.object.folder import build_object
 from spare_twin.sim.render import RenderConfig, render_recording
 
@@ -45,25 +46,27 @@ class DemoResult:
     object_dir: Path
     urdf_name: str
     rrd: Path
-    rig_prediction: dict
-    comparison: dict
+    rig_prediction: Prediction
+    """The shipped model on the training rig's render of the twin."""
+    comparison: Comparison
     seconds: float
 
     def summary(self) -> str:
         """The demo's report: true vs sim vs real, in paper units."""
-        result = self.comparison
-        truth = result["truth"]
+        c, rig = self.comparison, self.rig_prediction
         lines = [
             f"spare-twin demo finished in {self.seconds:.0f} s (paper units, base first)",
-            summary_row("true (printed)", truth),
-            summary_row("sim, training rig", self.rig_prediction, score(truth, self.rig_prediction)),
-            summary_row("sim, same cameras", result["sim"], result["errors"]["sim"]),
-            summary_row("real (sensor capture)", result["real"], result["errors"]["real"]),
-            summary_row(
-                "real, predict's own frame", result["real_estimated_frame"], result["errors"]["real_estimated_frame"]
+            *c.summary_rows({"truth": "true (printed)"}),
+            summary_row("sim, training rig", rig.n_links, rig.link_lengths_pu, c.truth.score(rig)),
+            *c.summary_rows(
+                {
+                    "sim": "sim, same cameras",
+                    "real": "real (sensor capture)",
+                    "real_estimated_frame": "real, predict's own frame",
+                }
             ),
             "  joint angles from articulated registration, error vs truth: "
-            + ", ".join(f"{a:.1f}" for a in result["errors"]["joint_angles_deg"])
+            + ", ".join(f"{a:.1f}" for a in c.joint_angle_errors_deg)
             + " deg",
             f"  printable files: {self.object_dir}/ (STLs, {self.urdf_name}, ASSEMBLY.md, preview.png)",
             f"  Rerun recording: {self.rrd}  (open with `rerun {self.rrd}`)",

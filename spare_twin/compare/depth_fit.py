@@ -26,6 +26,7 @@ import numpy as np
 from spare_twin.capture.frames import backproject, rotation_error_deg
 from spare_twin.object.folder import ObjectFolder
 from spare_twin.object.kinematics import base_pose, param_bounds
+from spare_twin.sim.twin import Twin
 
 #: Depth disagreements beyond this count as this much (metres): a hole or a stray reading is one bad pixel.
 DEPTH_TRUNCATE_M = 0.02
@@ -63,8 +64,6 @@ class DepthScorer:
     kept pixels' centres are exactly where the scaled intrinsics put them)."""
 
     def __init__(self, obj: ObjectFolder, views: list[DepthView], stride: int = 2):
-        from spare_twin.sim.twin import Twin
-
         self.obj = obj
         self.stride = stride
         self.twin = Twin()

@@ -21,13 +21,15 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.recording import Recording
 
-@dataclass
+
+@dataclass(frozen=True)
 class ComparisonLog:
     """Everything `log_comparison` writes; arrays in the twin's base frame (metres)."""
 
     result: dict
-    """The `compare --json` object."""
+    """The `compare --json` object (`Comparison.to_json()`)."""
     real_cloud: np.ndarray
     real_cloud_rgb: np.ndarray
     twin_meshes: list[tuple[np.ndarray, np.ndarray, tuple[float, float, float]]]
@@ -35,9 +37,8 @@ class ComparisonLog:
     real_input: np.ndarray
     """(V, H, W) depth the network saw for the real recording."""
     sim_input: np.ndarray
-    real_rec: object
-    """spare_twin.recording.Recording."""
-    sim_rec: object
+    real_rec: Recording
+    sim_rec: Recording
 
 
 def tile(views: np.ndarray, columns: int = 4) -> np.ndarray:
@@ -58,12 +59,15 @@ def summary_markdown(result: dict) -> str:
     def lengths(d):
         return ", ".join(f"{x:.3f}" for x in (d.get("link_lengths_m") or [])) or "-"
 
+    def scored(side):
+        return f"{'right' if errs[side]['count_correct'] else 'wrong'} | {errs[side]['E_L']:.4f}"
+
     lines = [
         "| | links | lengths (paper units, base first) | count | E_L |",
         "|---|---|---|---|---|",
         f"| truth | {truth['n_links']} | {lengths(truth)} | | |",
-        f"| sim | {sim['n_links']} | {lengths(sim)} | {'right' if errs['sim']['count_correct'] else 'wrong'} | {errs['sim']['E_L']:.4f} |",
-        f"| real | {real['n_links']} | {lengths(real)} | {'right' if errs['real']['count_correct'] else 'wrong'} | {errs['real']['E_L']:.4f} |",
+        f"| sim | {sim['n_links']} | {lengths(sim)} | {scored('sim')} |",
+        f"| real | {real['n_links']} | {lengths(real)} | {scored('real')} |",
     ]
     fit = result.get("registration") or {}
     if fit.get("joint_angles_rad") is not None:

@@ -53,12 +53,14 @@ def table_markdown(table: dict) -> str:
     rows = list(table["per_n"].items()) + [("all", table["overall"])]
     for n, s in rows:
         ja = s["joint_angle_error_deg"]
+        own = s["real_estimated_frame"]
         lines.append(
-            f"| {n} | {s['instances']} | {f(s['sim']['count_accuracy'], '.3f')} | {f(s['real']['count_accuracy'], '.3f')} | "
+            f"| {n} | {s['instances']} | {f(s['sim']['count_accuracy'], '.3f')} | "
+            f"{f(s['real']['count_accuracy'], '.3f')} | "
             f"{f(s['sim']['E_L'], '.4f')} | {f(s['real']['E_L'], '.4f')} | "
             + ("-" if ja is None else f"{ja['mean']:.2f} / {ja['max']:.2f}")
             + " | "
-            + f"{f(s['real_estimated_frame']['count_accuracy'], '.3f')} / {f(s['real_estimated_frame']['E_L'], '.4f')} |"
+            + f"{f(own['count_accuracy'], '.3f')} / {f(own['E_L'], '.4f')} |"
         )
     return "\n".join(lines) + "\n"
 

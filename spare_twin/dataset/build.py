@@ -1,4 +1,4 @@
-"""Generate, resume and extend a dataset folder in parallel.
+"""Generate, resume and extend a dataset folder in parallel, on local processes or a Ray cluster.
 
     DATA_DIR/dataset.json        the generation settings (seed, GenConfig): fixed at creation
     DATA_DIR/manifest.json       per sequence: index, file, n_links, link_lengths_pu, chain_seed, split
@@ -7,23 +7,25 @@
 Every sequence is a pure function of (seed, index, settings), each file is written under a temporary
 name and renamed, and the manifest is rebuilt from the finished files at the end of every run. So a
 run killed at any moment (kill -9 included) is finished by running the same command again, and a
-larger --instances on the same folder only adds the missing sequences.
+larger `instances` on the same folder only adds the missing sequences. The driver (this module) holds
+the folder's lock, picks the missing sequences, counts them on a progress bar and writes the manifest;
+a backend (backends.py, ray_backend.py) renders them, with the same bytes wherever it runs.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
-import multiprocessing as mp
 import os
-import shutil
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from spare_twin.dataset.generate import SPLITS, GenConfig, _seeds, n_links_of, render_sequence, sequence_spec, split_of
-from spare_twin.dataset.store import sequence_filename, write_sequence
+from spare_twin.dataset.backends import BACKENDS, check_workers, run_local
+from spare_twin.dataset.generate import SPLITS, GenConfig, _seeds, sequence_spec, split_of
+from spare_twin.dataset.ray_backend import SHARDS, RaySession, run_ray
+from spare_twin.dataset.store import sequence_filename
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_json_atomic
 
@@ -41,35 +43,6 @@ class Preset:
 
 #: paper: 324 sequences x 8 cameras x 100 frames = 259,200 images (153,600 / 28,800 / 76,800).
 PRESETS = {"paper": Preset(instances=324), "small": Preset(instances=36), "tiny": Preset(instances=6, frames=20)}
-
-
-# -- worker side -----------------------------------------------------------------------------
-_W: dict = {}
-
-
-def _init_worker(cfg_dict: dict, seed: int, seq_dir: str) -> None:
-    import cv2  # noqa: F401  (imported here so the first sequence does not pay for it)
-    import h5py  # noqa: F401
-
-    from spare_twin.sim.twin import Twin
-
-    _W["cfg"] = GenConfig.from_dict(cfg_dict)
-    _W["seed"] = seed
-    _W["seq_dir"] = Path(seq_dir)
-    _W["twin"] = Twin()
-    _W["work"] = Path(tempfile.mkdtemp(prefix="spare-twin-gen-"))
-
-
-def _work(index: int) -> int:
-    seq = render_sequence(_W["cfg"], _W["seed"], index, _W["twin"], _W["work"])
-    write_sequence(_W["seq_dir"] / sequence_filename(index), seq, fps=_W["cfg"].fps)
-    return index
-
-
-def _close_worker() -> None:
-    if "twin" in _W:
-        _W.pop("twin").close()
-        shutil.rmtree(_W.pop("work"), ignore_errors=True)
 
 
 # -- driver side -----------------------------------------------------------------------------
@@ -107,18 +80,21 @@ def _alive(pid: int) -> bool:
         return True
 
 
-def _check_settings(root: Path, seed: int, cfg: GenConfig) -> None:
+def _check_settings(root: Path, seed: int, cfg: GenConfig, create: bool = True) -> None:
+    """The folder's dataset.json must hold these settings; an absent one is written (with `create`)."""
     path = root / "dataset.json"
     want = {"format": DATASET_FORMAT, "seed": int(seed), "generator": cfg.to_dict()}
     if not path.exists():
-        write_json_atomic(path, want)
+        if create:
+            write_json_atomic(path, want)
         return
     have = read_json(path)
     if have.get("format") != DATASET_FORMAT:
         raise SpareTwinError(f"{path}: not a {DATASET_FORMAT} folder")
     if have.get("seed") != want["seed"]:
         raise SpareTwinError(
-            f"{root} was generated with --seed {have.get('seed')}; use it to resume or extend, or a new --out"
+            f"seed {seed}: {root} was generated with seed {have.get('seed')}; use that one to resume or extend it, "
+            "or another folder"
         )
     if have.get("generator") != json.loads(json.dumps(want["generator"])):
         diff = sorted(
@@ -127,7 +103,7 @@ def _check_settings(root: Path, seed: int, cfg: GenConfig) -> None:
             if have.get("generator", {}).get(k) != json.loads(json.dumps(want["generator"][k]))
         )
         raise SpareTwinError(
-            f"{root} was generated with other settings ({', '.join(diff)}); use the same options or a new --out"
+            f"{root} was generated with other settings ({', '.join(diff)}); use the same ones or another folder"
         )
 
 
@@ -183,32 +159,81 @@ def generate_dataset(
     root: str | Path,
     instances: int,
     seed: int = 0,
-    workers: int = 1,
+    workers: int | None = 1,
     cfg: GenConfig = GenConfig(),
     progress: bool = True,
+    backend: str = "local",
+    ray_address: str | None = None,
+    shards: str = "driver",
 ) -> dict:
-    """Generate (or resume, or extend) the dataset at `root`; returns a summary with timings."""
-    from tqdm import tqdm
+    """Generate (or resume, or extend) the dataset at `root`; returns a summary with timings.
 
+    backend "local": `workers` processes on this machine (None: 1). "ray": one Ray task per sequence on the
+    cluster at `ray_address` (None: a Ray instance of `workers` CPUs started here), at most `workers`
+    at a time (None: every CPU of the cluster); `shards` says who writes the files (ray_backend.py).
+    The files are the same bytes whatever the backend and the number of workers."""
     root = Path(root)
-    if instances < 1:
-        raise SpareTwinError("--instances must be at least 1")
-    if workers < 1:
-        raise SpareTwinError("--workers must be at least 1")
+    if backend not in BACKENDS:
+        raise SpareTwinError(f"backend {backend!r}: choose {' or '.join(BACKENDS)}")
+    if isinstance(instances, bool) or not isinstance(instances, int) or instances < 1:
+        raise SpareTwinError(f"instances {instances}: must be at least 1")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise SpareTwinError(f"seed {seed}: must be a whole number, 0 or more")
+    check_workers(workers)
+    if ray_address is not None and backend != "ray":
+        raise SpareTwinError("ray_address: only with backend ray")
+    if shards not in SHARDS:
+        raise SpareTwinError(f"shards {shards!r}: choose {' or '.join(SHARDS)}")
     if root.exists() and not root.is_dir():
         raise SpareTwinError(f"{root}: exists and is not a folder")
     if root.is_dir() and any(root.iterdir()) and not (root / "dataset.json").exists():
         raise SpareTwinError(f"{root}: not empty and not a dataset folder (no dataset.json)")
+    here = Path.cwd().resolve()
+    if root.resolve() == here or root.resolve() in here.parents:
+        raise SpareTwinError(f"{root}: the current folder, or one around it, is no place for a dataset; name a new one")
+    _check_settings(root, seed, cfg, create=False)  # refuse before writing anything
     seq_dir = root / "sequences"
-    seq_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
+    # Ray first: a cluster that cannot be reached leaves no folder behind
+    ray = backend == "ray" and bool(_missing(seq_dir, instances))
+    with RaySession(ray_address, workers) if ray else contextlib.nullcontext() as session:
+        try:
+            seq_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise SpareTwinError(f"{root}: cannot create the dataset folder ({exc.strerror or exc})") from None
+        todo, gen_s, manifest = _generate(root, instances, seed, workers, cfg, progress, backend, shards)
+    images_per_seq = cfg.rig.n_cameras * cfg.frames
+    return {
+        "root": str(root),
+        "instances": instances,
+        "generated": len(todo),
+        "already_present": instances - len(todo),
+        "images": manifest["images"],
+        "generated_images": len(todo) * images_per_seq,
+        "generate_s": gen_s,
+        "wall_s": time.perf_counter() - t0,
+        "splits": manifest["splits"],
+        "complete": manifest["complete"],
+        "backend": backend,
+        "connect_s": session.connect_s if ray else 0.0,
+    }
+
+
+def _missing(seq_dir: Path, instances: int) -> list[int]:
+    return [i for i in range(instances) if not (seq_dir / sequence_filename(i)).is_file()]
+
+
+def _generate(root: Path, instances, seed, workers, cfg: GenConfig, progress, backend, shards):
+    """Under the folder's lock: render the missing sequences, then rebuild the manifest (also when cut short)."""
+    from tqdm import tqdm
+
+    seq_dir = root / "sequences"
+    images_per_seq = cfg.rig.n_cameras * cfg.frames
     with _Lock(root):
         _check_settings(root, seed, cfg)
-        for stale in seq_dir.glob(".seq-*.tmp-*"):  # left by a killed run
+        for stale in seq_dir.glob(".seq-*.tmp*"):  # left by a killed run
             stale.unlink(missing_ok=True)
-        todo = [i for i in range(instances) if not (seq_dir / sequence_filename(i)).is_file()]
-        done_before = instances - len(todo)
-        images_per_seq = cfg.rig.n_cameras * cfg.frames
+        todo = _missing(seq_dir, instances)
         bar = tqdm(
             total=len(todo),
             unit="seq",
@@ -220,38 +245,19 @@ def generate_dataset(
         )
         t_gen = time.perf_counter()
         try:
-            if workers == 1 or len(todo) <= 1:
-                _init_worker(cfg.to_dict(), seed, str(seq_dir))
-                try:
-                    for i in todo:
-                        _work(i)
-                        bar.update(1)
-                        bar.set_postfix(img_s=f"{bar.n * images_per_seq / (time.perf_counter() - t_gen):.0f}")
-                finally:
-                    _close_worker()
+            if backend == "local":
+                done = run_local(todo, cfg, seed, seq_dir, workers or 1)
             else:
-                ctx = mp.get_context("spawn")  # pybullet clients must not be forked
-                with ctx.Pool(workers, initializer=_init_worker, initargs=(cfg.to_dict(), seed, str(seq_dir))) as pool:
-                    for _ in pool.imap_unordered(_work, todo, chunksize=1):
-                        bar.update(1)
-                        bar.set_postfix(img_s=f"{bar.n * images_per_seq / (time.perf_counter() - t_gen):.0f}")
+                done = run_ray(todo, cfg, seed, seq_dir, workers, shards)
+            for _ in done if todo else ():
+                bar.update(1)
+                bar.set_postfix(img_s=f"{bar.n * images_per_seq / (time.perf_counter() - t_gen):.0f}")
         finally:
             bar.close()
             gen_s = time.perf_counter() - t_gen
             manifest = build_manifest(root, instances)
             write_json_atomic(root / "manifest.json", manifest)
-    return {
-        "root": str(root),
-        "instances": instances,
-        "generated": len(todo),
-        "already_present": done_before,
-        "images": manifest["images"],
-        "generated_images": len(todo) * images_per_seq,
-        "generate_s": gen_s,
-        "wall_s": time.perf_counter() - t0,
-        "splits": manifest["splits"],
-        "complete": manifest["complete"],
-    }
+    return todo, gen_s, manifest
 
 
 def load_manifest(root: str | Path) -> dict:
@@ -260,10 +266,3 @@ def load_manifest(root: str | Path) -> dict:
     if m.get("format") != DATASET_FORMAT:
         raise SpareTwinError(f"{root / 'manifest.json'}: not a {DATASET_FORMAT} manifest")
     return m
-
-
-def n_links_balance(instances: int) -> dict[int, int]:
-    out: dict[int, int] = {}
-    for i in range(instances):
-        out[n_links_of(i)] = out.get(n_links_of(i), 0) + 1
-    return out

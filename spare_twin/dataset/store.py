@@ -27,11 +27,10 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 from pathlib import Path
 
 import numpy as np
-
-from spare_twin.errors import SpareTwinError
 
 SEQUENCE_FORMAT = "spare-twin-sequence/1"
 IMAGE_KEYS = ("depth", "grey", "segmentation")
@@ -46,7 +45,8 @@ def write_sequence(path: str | Path, seq, fps: float, compression_level: int = 1
     import h5py
 
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    # host and pid: writers on several nodes of a cluster may share the folder
+    tmp = path.with_name(f".{path.name}.tmp-{socket.gethostname()}-{os.getpid()}")
     try:
         with h5py.File(tmp, "w", libver=("earliest", "v110"), track_order=False) as f:
             V, T, H, W = seq.depth.shape
@@ -91,15 +91,3 @@ def write_sequence(path: str | Path, seq, fps: float, compression_level: int = 1
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
-
-
-def read_attrs(path: str | Path) -> dict:
-    import h5py
-
-    try:
-        with h5py.File(path, "r") as f:
-            if f.attrs.get("format") != SEQUENCE_FORMAT:
-                raise SpareTwinError(f"{path}: not a {SEQUENCE_FORMAT} file")
-            return {k: (v.item() if hasattr(v, "item") else v) for k, v in f.attrs.items()}
-    except OSError as exc:
-        raise SpareTwinError(f"{path}: unreadable HDF5 file ({exc})") from None

@@ -13,17 +13,21 @@ samples are rendered on demand (and cached), so tests need no large files.
 from __future__ import annotations
 
 import json
+import math
 import zlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+import torch.utils.data as _tud
 
-from spare_twin.config import sample_lengths
+from spare_twin.config import PartDims, sample_lengths
+from spare_twin.errors import SpareTwinError
+from spare_twin.sim.rig import Rig
 
 FORMAT = "spare-twin-synthetic"
 RIG_NAME = "synthetic-ring8"
-LAYER_PITCH_M = 0.0064
+LAYER_PITCH_M = PartDims().layer_pitch_mm / 1000.0
 LINK_RADIUS_M = 0.006
 KEEPOUT_M = 0.017  # foot + socket height: links stay above it
 GREY_OF_COLOUR = [0.08, 0.95, 0.35, 0.6, 0.3, 0.45, 0.8, 0.2]  # luminance of the paper's 8 colours
@@ -44,27 +48,23 @@ class SyntheticSpec:
     n_range: tuple[int, int] = (1, 6)
 
 
-def look_at(eye, target) -> np.ndarray:
-    """4x4 camera-to-world pose, OpenCV axes (x right, y down, z forward), world z up."""
-    eye, target = np.asarray(eye, float), np.asarray(target, float)
-    z = target - eye
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    y = np.cross(z, x)
-    T = np.eye(4)
-    T[:3, 0], T[:3, 1], T[:3, 2], T[:3, 3] = x, y, z, eye
-    return T
+def synthetic_rig() -> Rig:
+    """The synthetic 8-camera ring: 0.36 m from the axis, 0.18 m high, aimed at (0, 0, 0.12), f = 125 px at
+    96 x 128. Camera 0 stands at 22.5 deg so that no camera looks exactly along the chain's plane."""
+    return Rig(
+        name=RIG_NAME,
+        radius_m=0.36,
+        heights_m=(0.18,),
+        look_at_m=(0.0, 0.0, 0.12),
+        azimuth0_deg=22.5,
+        fov_y_deg=math.degrees(2 * math.atan(48.0 / 125.0)),
+    )
 
 
-def rig(n_cams: int = 8, radius_m: float = 0.36, height_m: float = 0.18, target_z_m: float = 0.12):
-    """The synthetic ring rig: K (3, 3) at 96x128 and the camera-to-world poses (n_cams, 4, 4)."""
-    K = np.array([[125.0, 0.0, 63.5], [0.0, 125.0, 47.5], [0.0, 0.0, 1.0]])
-    poses = []
-    for i in range(n_cams):
-        a = 2 * np.pi * (i + 0.5) / n_cams  # offset so no camera looks exactly along the chain plane
-        poses.append(look_at([radius_m * np.cos(a), radius_m * np.sin(a), height_m], [0.0, 0.0, target_z_m]))
-    return K, np.stack(poses)
+def rig() -> tuple[np.ndarray, np.ndarray]:
+    """The synthetic ring as arrays: K (3, 3) at 96 x 128 and the camera-to-world poses (8, 4, 4)."""
+    ring = synthetic_rig()
+    return ring.K(), ring.poses()
 
 
 def chain_segments(lengths_pu: np.ndarray, angles_rad: np.ndarray, print_scale: float) -> list[tuple]:
@@ -232,8 +232,6 @@ class SyntheticDataset:
     def __init__(self, spec: SyntheticSpec, split: str, cache: bool = True):
         sizes = dict(spec.sizes)
         if split not in sizes:
-            from spare_twin.errors import SpareTwinError
-
             raise SpareTwinError(f"synthetic data has no split {split!r} (has {', '.join(sizes)})")
         self.spec, self.split, self.n = spec, split, sizes[split]
         self._cache: dict[int, dict] | None = {} if cache else None
@@ -264,22 +262,21 @@ class SyntheticDataset:
         )
 
 
-import torch.utils.data as _tud  # noqa: E402  (torch only where the datasets are used)
-
-
 class SyntheticOnTheFly(_tud.IterableDataset):
-    """Endless fresh synthetic samples (split "fresh"), a different stream per DataLoader worker."""
+    """Endless fresh synthetic samples (split "fresh"): a different stream per data-loader worker and per
+    training process (`rank` of `world_size` under torchrun), as in dataset.torch_data.OnTheFlyDataset."""
 
-    def __init__(self, spec: SyntheticSpec, seed: int):
+    def __init__(self, spec: SyntheticSpec, seed: int, rank: int = 0, world_size: int = 1):
         super().__init__()
         self.spec = SyntheticSpec(**{**asdict(spec), "seed": seed})
+        self.rank, self.world_size = rank, world_size
 
     def __iter__(self):
         import torch
 
         info = _tud.get_worker_info()
         wid, nw = (info.id, info.num_workers) if info else (0, 1)
-        i = wid
+        i, step = self.rank + self.world_size * wid, self.world_size * nw
         while True:
             yield {k: torch.as_tensor(v) for k, v in make_sample(self.spec, "fresh", i).items()}
-            i += nw
+            i += step

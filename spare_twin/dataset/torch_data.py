@@ -16,6 +16,9 @@ HDF5 files are opened lazily in each data-loader worker (h5py handles must not c
 from __future__ import annotations
 
 import math
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,6 +31,7 @@ from spare_twin.dataset.build import load_manifest
 from spare_twin.dataset.generate import GenConfig, render_sequence
 from spare_twin.errors import SpareTwinError
 from spare_twin.sim.noise import DepthNoise
+from spare_twin.sim.twin import Twin
 
 MODES = ("mv", "tmp")
 MODALITIES = ("depth", "grey")
@@ -146,8 +150,6 @@ class SpareDataset(Dataset):
         return len(self.rows) * per
 
     def _file(self, row):
-        import os
-
         import h5py
 
         if self._pid != os.getpid():  # a new worker process: never reuse the parent's handles
@@ -209,10 +211,13 @@ def TemporalDataset(root, split="train", modality="depth", **kw) -> SpareDataset
 class OnTheFlyDataset(IterableDataset):
     """Unlimited fresh sequences rendered inside the data-loader workers; nothing is stored.
 
-    Worker w of W renders sequence indices first_index + w, + W, + 2W, ... of the dataset with
-    `seed` (so items are reproducible and no two workers repeat a sequence), and yields
-    `samples_per_sequence` items from each (random time steps for mv, random cameras for tmp).
-    `sequences` bounds an epoch (None: endless). Call `set_epoch(e)` to draw new sequences each epoch.
+    Data-loader worker w of W in training process `rank` of `world_size` (torchrun) is stream
+    s = rank + world_size * w of S = world_size * W, and renders sequence indices first_index + s, + S,
+    + 2S, ... of the dataset with `seed`: items are reproducible and no two workers or processes repeat a
+    sequence. Each sequence yields `samples_per_sequence` items (random time steps for mv, random cameras
+    for tmp). `sequences` bounds an epoch over all processes (None: endless); every process gets the same
+    number of them (rounded up), so data-parallel processes take the same number of steps. Call
+    `set_epoch(e)` to draw new sequences each epoch.
     """
 
     def __init__(
@@ -227,10 +232,17 @@ class OnTheFlyDataset(IterableDataset):
         depth_noise: DepthNoise | None = None,
         jitter_grey: bool = False,
         pose_jitter: PoseJitter | None = None,
+        rank: int = 0,
+        world_size: int = 1,
     ):
         _check(mode, modality)
+        if not 0 <= rank < world_size:
+            raise SpareTwinError(f"rank {rank}: must be within 0..{world_size - 1} (world_size {world_size})")
         self.mode, self.modality, self.cfg, self.seed = mode, modality, cfg, seed
+        if sequences is not None:
+            sequences = world_size * -(-sequences // world_size)
         self.sequences, self.per_seq, self.first_index = sequences, samples_per_sequence, first_index
+        self.rank, self.world_size = rank, world_size
         self.noise, self.jitter_grey, self.pose_jitter = depth_noise, jitter_grey, pose_jitter
         self.epoch = 0
 
@@ -238,17 +250,13 @@ class OnTheFlyDataset(IterableDataset):
         self.epoch = int(epoch)
 
     def __iter__(self):
-        import tempfile
-
-        from spare_twin.sim.twin import Twin
-
         info = get_worker_info()
         wid, nw = (info.id, info.num_workers) if info is not None else (0, 1)
         seed = int(np.random.SeedSequence([self.seed, self.epoch]).generate_state(1)[0])
         twin = Twin()
         work = Path(tempfile.mkdtemp(prefix="spare-twin-otf-"))
         try:
-            k = wid
+            k, step = self.rank + self.world_size * wid, self.world_size * nw
             while self.sequences is None or k < self.sequences:
                 index = self.first_index + k
                 seq = render_sequence(self.cfg, seed, index, twin, work)
@@ -282,9 +290,7 @@ class OnTheFlyDataset(IterableDataset):
                         rng,
                         self.pose_jitter,
                     )
-                k += nw
+                k += step
         finally:
             twin.close()
-            import shutil
-
             shutil.rmtree(work, ignore_errors=True)

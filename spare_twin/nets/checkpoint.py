@@ -15,13 +15,19 @@ from __future__ import annotations
 import dataclasses
 import io
 import json
+import os
 import platform
 import shutil
 import time
+from collections.abc import Sequence
 from pathlib import Path
+
+import torch
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_bytes_atomic, write_json_atomic
+from spare_twin.nets.models import build_model, input_norms
+from spare_twin.nets.presets import net_from_dict
 
 FORMAT = "spare-twin-net"
 VERSION = 1
@@ -30,10 +36,6 @@ INDEX_TASKS = ("predict", "count-mv", "count-tmp", "lengths-mv", "e2e-mv", "e2e-
 
 
 def machine_description() -> str:
-    import os
-
-    import torch
-
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -48,8 +50,6 @@ def machine_description() -> str:
 
 def save(path: str | Path, obj: dict) -> Path:
     """Atomic write: a crash mid-save leaves the previous file intact (resume relies on it)."""
-    import torch
-
     buf = io.BytesIO()
     torch.save(obj, buf)
     path = Path(path)
@@ -58,8 +58,6 @@ def save(path: str | Path, obj: dict) -> Path:
 
 
 def load(path: str | Path, device="cpu") -> dict:
-    import torch
-
     path = Path(path)
     if not path.is_file():
         raise SpareTwinError(f"{path}: no such checkpoint")
@@ -76,8 +74,6 @@ def load(path: str | Path, device="cpu") -> dict:
 
 def model_record(preset_name: str, net, train, model, meta: dict) -> dict:
     """The lean, shippable checkpoint dict for `model` (no optimiser state)."""
-    from spare_twin.nets.models import input_norms
-
     norms = input_norms(model)
     normalization = {"mean": float(norms[0].mean), "std": float(norms[0].std)} if norms else None
     return {
@@ -94,9 +90,6 @@ def model_record(preset_name: str, net, train, model, meta: dict) -> dict:
 
 def load_model(path: str | Path, device="cpu"):
     """(model in eval mode, NetConfig, checkpoint dict)."""
-    from spare_twin.nets.models import build_model
-    from spare_twin.nets.presets import net_from_dict
-
     ck = load(path, device)
     net = net_from_dict(ck["net"], f"{path}: net")
     model = build_model(net)
@@ -126,7 +119,7 @@ def model_card(ck: dict, name: str) -> str:
     """Markdown model card from a checkpoint's configs and metadata."""
     m, net, tr = ck.get("meta", {}), ck["net"], ck["train"]
     metrics = m.get("metrics", {})
-    view = "multi-view (8 views)" if net["mode"] == "mv" else "temporal (%d frames)" % net["frames"]
+    view = "multi-view (8 views)" if net["mode"] == "mv" else f"temporal ({int(net['frames'])} frames)"
     lines = [
         f"# {name}",
         "",
@@ -184,21 +177,28 @@ def default_model(task: str = "predict", models_dir: Path = MODELS_DIR) -> Path:
     name = idx.get("defaults", {}).get(task)
     if not name:
         raise SpareTwinError(
-            f"{Path(models_dir) / 'index.json'}: no shipped default model for {task!r}; pass --model CKPT"
+            f"model: none given, and {Path(models_dir) / 'index.json'} names no shipped default for {task!r}"
         )
     entry = idx.get("models", {}).get(name, {})
     path = Path(models_dir) / entry.get("file", f"{name}.pt")
     if not path.is_file():
-        raise SpareTwinError(f"{path}: shipped model {name!r} is missing; pass --model CKPT")
+        raise SpareTwinError(f"model: none given, and the shipped default {name!r} is missing ({path})")
     return path
 
 
-def ship(ckpt_path: str | Path, name: str, tasks: list[str], models_dir: Path = MODELS_DIR) -> Path:
-    """Copy a checkpoint into models/ as <name>.pt, write <name>.md, register it in index.json and make
-    it the default for `tasks`."""
+def check_ship(name: str, tasks: Sequence[str]) -> None:
+    """`ship`'s arguments are usable: `name` is a file stem, every task one of INDEX_TASKS."""
+    if not name or not all(ch.isalnum() or ch in "_-." for ch in name) or name.startswith("."):
+        raise SpareTwinError(f"name {name!r}: a model name is letters, digits, '_', '-' or '.' (a file stem)")
     for t in tasks:
         if t not in INDEX_TASKS:
-            raise SpareTwinError(f"--default-for: unknown task {t!r} (choose from {', '.join(INDEX_TASKS)})")
+            raise SpareTwinError(f"tasks: unknown task {t!r} (choose from {', '.join(INDEX_TASKS)})")
+
+
+def ship(ckpt_path: str | Path, name: str, tasks: Sequence[str], models_dir: Path = MODELS_DIR) -> Path:
+    """Copy a checkpoint into models/ as <name>.pt, write <name>.md, register it in index.json and make
+    it the default for `tasks`."""
+    check_ship(name, tasks)
     models_dir = Path(models_dir)
     models_dir.mkdir(parents=True, exist_ok=True)
     dst = models_dir / f"{name}.pt"

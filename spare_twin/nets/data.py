@@ -1,17 +1,23 @@
 """Where the networks get their samples: the project's dataset (spare_twin.dataset) or a synthetic
-folder (synthetic.json, see synthetic.py). Both yield the CONTRACTS.md sample dict.
+folder (synthetic.json, see dataset/synthetic.py). Both yield the docs/CONTRACTS.md sample dict.
 
 Stored data: ``spare_twin.dataset.torch_data.SpareDataset`` (manifest.json + HDF5 sequences).
 On the fly: ``spare_twin.dataset.torch_data.OnTheFlyDataset`` with the stored dataset's generator
-settings (so fresh samples come from the same rig and randomisation) and a seed of its own.
+settings (so fresh samples come from the same rig and randomisation) and a seed of its own; under
+torchrun each process draws its own sequences (`rank`, `world_size`).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
+from spare_twin.dataset.build import load_manifest
+from spare_twin.dataset.generate import GenConfig
+from spare_twin.dataset.synthetic import RIG_NAME, SyntheticDataset, SyntheticOnTheFly, read_spec
+from spare_twin.dataset.torch_data import OnTheFlyDataset, PoseJitter, SpareDataset
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets.presets import NetConfig, TrainConfig
+from spare_twin.sim.noise import load_noise
 
 
 def _is_synthetic(data_dir: Path) -> bool:
@@ -19,15 +25,13 @@ def _is_synthetic(data_dir: Path) -> bool:
 
 
 def _manifest(data_dir: Path) -> dict:
-    from spare_twin.dataset.build import load_manifest
-
     return load_manifest(data_dir)
 
 
 def _check_dir(data_dir) -> Path:
     data_dir = Path(data_dir)
     if not data_dir.is_dir():
-        raise SpareTwinError(f"--data {data_dir}: no such folder")
+        raise SpareTwinError(f"data_dir {data_dir}: no such folder")
     return data_dir
 
 
@@ -35,9 +39,6 @@ def augmentation(tr: TrainConfig | None) -> dict:
     """The read-time sim-to-real augmentation keyword arguments of the torch datasets for `tr`."""
     if tr is None:
         return {}
-    from spare_twin.dataset.torch_data import PoseJitter
-    from spare_twin.sim.noise import load_noise
-
     out = {}
     if tr.depth_noise:
         out["depth_noise"] = load_noise(tr.depth_noise, flag="train.depth_noise")
@@ -51,21 +52,19 @@ def open_split(data_dir, split: str, net: NetConfig, augment: TrainConfig | None
     the sim-to-real augmentation of `augment` (a TrainConfig) applied at read time."""
     data_dir = _check_dir(data_dir)
     if _is_synthetic(data_dir):
-        from spare_twin.dataset.synthetic import SyntheticDataset, read_spec
-
         spec = read_spec(data_dir)
         if (spec.mode, spec.input) != (net.mode, net.input):
             raise SpareTwinError(
-                f"--data {data_dir}: synthetic {spec.mode}/{spec.input} data, but the network wants {net.mode}/{net.input}"
+                f"data_dir {data_dir}: synthetic {spec.mode}/{spec.input} data, "
+                f"but the network wants {net.mode}/{net.input}"
             )
         if augmentation(augment):
             raise SpareTwinError(
-                f"--data {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data"
+                f"data_dir {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data"
             )
         return SyntheticDataset(spec, split)
     if not (data_dir / "manifest.json").is_file():
-        raise SpareTwinError(f"--data {data_dir}: not a dataset (no manifest.json; make one with spare-twin dataset)")
-    from spare_twin.dataset.torch_data import SpareDataset
+        raise SpareTwinError(f"data_dir {data_dir}: not a dataset (no manifest.json; make one with spare-twin dataset)")
 
     ds = SpareDataset(
         data_dir,
@@ -76,26 +75,28 @@ def open_split(data_dir, split: str, net: NetConfig, augment: TrainConfig | None
         **augmentation(augment),
     )
     if len(ds) == 0:
-        raise SpareTwinError(f"--data {data_dir}: the {split} split is empty")
+        raise SpareTwinError(f"data_dir {data_dir}: the {split} split is empty")
     return ds
 
 
 def open_on_the_fly(
-    data_dir, net: NetConfig, seed: int, samples: int | None = None, augment: TrainConfig | None = None
+    data_dir,
+    net: NetConfig,
+    seed: int,
+    samples: int | None = None,
+    augment: TrainConfig | None = None,
+    rank: int = 0,
+    world_size: int = 1,
 ):
-    """An IterableDataset of freshly rendered samples (--on-the-fly), same generator as the stored data."""
+    """An IterableDataset of freshly rendered samples (on the fly), same generator as the stored data;
+    `samples` per epoch over all `world_size` processes, of which this is `rank` (disjoint sequences)."""
     data_dir = _check_dir(data_dir)
     if _is_synthetic(data_dir):
-        from spare_twin.dataset.synthetic import SyntheticOnTheFly, read_spec
-
         if augmentation(augment):
             raise SpareTwinError(
-                f"--data {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data"
+                f"data_dir {data_dir}: sim-to-real augmentation needs a spare-twin dataset, not synthetic data"
             )
-        return SyntheticOnTheFly(read_spec(data_dir), seed)
-    from spare_twin.dataset.generate import GenConfig
-    from spare_twin.dataset.torch_data import OnTheFlyDataset
-
+        return SyntheticOnTheFly(read_spec(data_dir), seed, rank, world_size)
     m = _manifest(data_dir)
     per_seq = 8
     sequences = None if samples is None else -(-samples // per_seq)
@@ -107,6 +108,8 @@ def open_on_the_fly(
         seed=10_000 + seed,
         sequences=sequences,
         samples_per_sequence=per_seq,
+        rank=rank,
+        world_size=world_size,
         **augmentation(augment),
     )
 
@@ -115,8 +118,6 @@ def dataset_rig(data_dir) -> str | None:
     """The rig name the data was rendered with (predict compares it with a recording's rig)."""
     data_dir = Path(data_dir)
     if _is_synthetic(data_dir):
-        from spare_twin.dataset.synthetic import RIG_NAME
-
         return RIG_NAME
     try:
         return _manifest(data_dir)["generator"]["rig"].get("name")

@@ -1,6 +1,6 @@
 """The paper's metrics: link-count accuracy, the link-length error E_L, per-n breakdowns, confusion.
 
-Pure numpy (torch tensors are accepted and converted). Conventions, from DESIGN.md:
+Pure numpy (torch tensors are accepted and converted). Conventions (docs/design.md, the object model):
 
 - counts are moving links n in 1..6; the class index is n - 1;
 - length vectors are the paper's 7-slot label in paper units (base first, zeros past the last link);
@@ -14,8 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 
-N_CLASSES = 6
-LABEL_SLOTS = 7
+from spare_twin.config import LABEL_SLOTS, MAX_MOVING_LINKS, MIN_MOVING_LINKS
+
+# The PNG writers live in plots.py; train.py still reaches them through this module.
+from spare_twin.nets.plots import write_confusion_png, write_learning_curve_png  # noqa: F401
+
+N_CLASSES = MAX_MOVING_LINKS - MIN_MOVING_LINKS + 1
 
 
 def _np(a) -> np.ndarray:
@@ -49,11 +53,6 @@ def length_errors(true_lengths, pred_lengths, true_n, pred_n=None) -> np.ndarray
     return np.sum((t - p) ** 2, axis=1)
 
 
-def mean_length_error(true_lengths, pred_lengths, true_n, pred_n=None) -> float:
-    """E_L averaged over instances (the number the paper's Table 1 reports)."""
-    return float(np.mean(length_errors(true_lengths, pred_lengths, true_n, pred_n)))
-
-
 def confusion_matrix(true_n, pred_n, n_classes: int = N_CLASSES) -> np.ndarray:
     """(n_classes, n_classes) int64 counts; row = true n, column = predicted n (index n - 1)."""
     t = _np(true_n).astype(np.int64).reshape(-1) - 1
@@ -83,7 +82,3 @@ def per_n_breakdown(true_n, pred_n=None, errors=None) -> dict[str, dict]:
             row["E_L"] = float(np.mean(_np(errors).reshape(-1)[sel]))
         out[str(n)] = row
     return out
-
-
-# The PNG writers live in plots.py (OpenCV drawing, no matplotlib); re-exported for one import site.
-from spare_twin.nets.plots import write_confusion_png, write_learning_curve_png  # noqa: E402,F401

@@ -1,200 +1,86 @@
 """`spare-twin predict`: a network on any recording (sim or real).
 
-The recording's views are brought into the network's input space: 96 x 128, centre-cropped to the
-4:3 aspect and resized, with the intrinsics adjusted to match (depth resized with nearest
-neighbour, so no depth is invented at edges). A recording from the training rig is used as it is.
-Any other recording is brought into the canonical object frame (base at the origin on the table, z up,
-chain in x-z; see `spare_twin.observe.canonical`): the geometry-aware voxel networks take its own
-posed views moved into that frame, the image networks see it re-rendered into the training rig
-(`to_rig_views`). A real recording's object frame is known only up to a yaw hypothesis (a quarter
-turn); the network runs on every hypothesis and the most confident output (largest count
-probability) wins. Unregistered real recordings are registered in a temporary copy first.
+`spare_twin.observe` makes the network's input of the recording (one per yaw hypothesis of its
+object frame); this module loads the model, runs it on all of them in one pass and keeps the most
+confident output (largest count probability).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
 import numpy as np
 import torch
 
-from spare_twin.capture.frames import fit_view
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.models import decode, model_inputs
 from spare_twin.nets.presets import NetConfig
-
-DEFAULT_PRINT_SCALE = 0.08  # ChainSpec's default, for recordings that do not carry their object
-
-
-def _view(rec, cam, frame: int, net: NetConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    import cv2
-
-    c = rec.camera(cam)
-    if net.input == "depth":
-        img, K = fit_view(rec.depth_m(cam, frame), c.K, net.height, net.width, nearest=True)
-    else:
-        grey = cv2.cvtColor(rec.color(cam, frame), cv2.COLOR_RGB2GRAY).astype(np.float32) / 255.0
-        img, K = fit_view(grey, c.K, net.height, net.width, nearest=False)
-    T = rec.T_world_camera(cam, frame)
-    return img.astype(np.float32), K, T
+from spare_twin.observe.network_input import InputSpec, NetworkInput, observe_recording
 
 
-def _print_scale(rec, print_scale: float | None) -> float:
-    if print_scale is not None:
-        return float(print_scale)
-    obj = rec.object_config or {}
-    return float(obj.get("print_scale", DEFAULT_PRINT_SCALE))
+@dataclass(frozen=True)
+class Prediction:
+    """What a network says of a recording (`spare-twin predict --json`)."""
+
+    n_links: int | None
+    """Moving links; None when the model gives no count and none was given."""
+    link_lengths_pu: tuple[float, ...] | None
+    """n + 1 lengths in paper units, base first (JSON `link_lengths_m`)."""
+    probabilities: tuple[float, ...] | None
+    """One per count class (n = 1..6), in class order; None for a lengths-only model."""
+    joint_angles_rad: tuple[float, ...] | None
+    """n joint angles of the observed pose, for models that regress them (else absent from the JSON)."""
+    input: str
+    """How the recording became the network's input (`spare_twin.observe.Observation.method`)."""
+    yaw_hypotheses_deg: tuple[float, ...]
+    yaw_deg: float
+    """The yaw hypothesis whose output was kept."""
+    model: str
+    recording: str
+    network_input: np.ndarray | None = field(default=None, repr=False, compare=False)
+    """(V, H, W) views the network saw for the kept yaw (for logging; not JSON)."""
+
+    def to_json(self) -> dict:
+        out: dict = {
+            "n_links": self.n_links,
+            "link_lengths_m": None if self.link_lengths_pu is None else list(self.link_lengths_pu),
+            "probabilities": None if self.probabilities is None else list(self.probabilities),
+        }
+        if self.joint_angles_rad is not None:
+            out["joint_angles_rad"] = list(self.joint_angles_rad)
+        out["input"] = self.input
+        out["yaw_hypotheses_deg"] = list(self.yaw_hypotheses_deg)
+        out["yaw_deg"] = self.yaw_deg
+        out["model"] = self.model
+        out["recording"] = self.recording
+        return out
 
 
-def _batch(views: list, net: NetConfig, print_scale: float) -> dict:
-    """A batch of one in the CONTRACTS.md layout from (image, K, T_world_camera) views."""
-    x = np.stack([v[0] for v in views])[None]
-    Ks = np.stack([v[1] for v in views])[None]
-    Ts = np.stack([v[2] if v[2] is not None else np.eye(4) for v in views])[None]
-    if net.mode == "tmp":
-        Ks, Ts = Ks[:, :1], Ts[:, :1]
+def input_spec(net: NetConfig) -> InputSpec:
+    """What `net` reads, in observe's terms."""
+    return InputSpec(net.input, net.mode, net.frames, net.height, net.width, posed=net.arch == "geo_voxel")
+
+
+def to_batch(inputs: Sequence[NetworkInput]) -> dict:
+    """A batch in the docs/CONTRACTS.md layout, one row per input."""
     return {
-        "x": torch.as_tensor(x, dtype=torch.float32),
-        "K": torch.as_tensor(Ks, dtype=torch.float32),
-        "T_world_camera": torch.as_tensor(Ts, dtype=torch.float32),
-        "print_scale": torch.tensor([print_scale], dtype=torch.float32),
+        "x": torch.as_tensor(np.stack([i.x for i in inputs]), dtype=torch.float32),
+        "K": torch.as_tensor(np.stack([i.K for i in inputs]), dtype=torch.float32),
+        "T_world_camera": torch.as_tensor(np.stack([i.T_world_camera for i in inputs]), dtype=torch.float32),
+        "print_scale": torch.tensor([i.print_scale for i in inputs], dtype=torch.float32),
     }
 
 
-def recording_sample(
-    rec, net: NetConfig, frame: int | None = None, camera: str | None = None, print_scale: float | None = None
-) -> dict:
-    """A batch of one in the CONTRACTS.md layout from a recording's own views (its world as it is)."""
-    needs_poses = net.arch == "geo_voxel"
-    if net.mode == "mv":
-        if len(rec.cameras) != net.frames:
-            raise SpareTwinError(
-                f"{rec.root}: the network takes {net.frames} views, the recording has {len(rec.cameras)} cameras"
-            )
-        frame = rec.n_frames // 2 if frame is None else frame
-        views = [_view(rec, c.name, frame, net) for c in rec.cameras]
-    else:
-        cam = camera or rec.cameras[0].name
-        picks = np.linspace(0, rec.n_frames - 1, net.frames).round().astype(int)  # resample to T frames
-        views = [_view(rec, cam, int(f), net) for f in picks]
-        views = [(img, views[0][1], views[0][2]) for img, _, _ in views]
-    if needs_poses and any(T is None for _, _, T in views):
-        raise SpareTwinError(f"{rec.root}: camera poses unknown; run `spare-twin capture register` first")
-    return _batch(views, net, _print_scale(rec, print_scale))
-
-
-def _sim_world(rec) -> bool:
-    """An unregistered simulation recording with posed cameras: its world already is the canonical
-    object frame (base at the origin, chain in x-z), so its poses are used as they are."""
-    return (
-        not rec.meta.get("registration")
-        and rec.source.get("kind") == "sim"
-        and all(c.poses != "unknown" for c in rec.cameras)
-    )
-
-
-def _posed_views(
-    rec,
-    net: NetConfig,
-    frame: int | None,
-    camera: str | None,
-    T_canonical_world: np.ndarray,
-    camera_poses: dict | None = None,
-) -> list:
-    """net.frames posed views for the voxel network, poses moved into the canonical frame: the
-    recording's cameras at `frame` when it has that many posed ones, else frames of one camera spread
-    over the recording (a hand-held sweep round a still object). `camera_poses` ({(camera, frame):
-    T_world_camera}) overrides the recording's poses where it has them."""
-    posed = [c for c in rec.cameras if c.poses != "unknown"]
-    if not posed:
-        raise SpareTwinError(f"{rec.root}: camera poses unknown; run `spare-twin capture register` first")
-    if len(posed) == net.frames:
-        f = rec.n_frames // 2 if frame is None else frame
-        picks = [(c.name, f) for c in posed]
-    else:
-        cam = camera or (rec.meta.get("registration") or {}).get("camera") or posed[0].name
-        picks = [(cam, int(f)) for f in np.linspace(0, rec.n_frames - 1, net.frames).round()]
-    views = []
-    for cam, f in picks:
-        img, K, T = _view(rec, cam, f, net)
-        T = (camera_poses or {}).get((cam, f), T)
-        views.append((img, K, T_canonical_world @ T))
-    return views
-
-
-def recording_batches(
-    rec,
-    net: NetConfig,
-    training_rig: str | None,
-    frame: int | None = None,
-    camera: str | None = None,
-    print_scale: float | None = None,
-    workdir=None,
-    progress: bool = True,
-    yaw_hypotheses: int = 4,
-    T_world_base: np.ndarray | None = None,
-    camera_poses: dict | None = None,
-) -> tuple[list[dict], tuple[float, ...], str]:
-    """The network inputs for a recording, one batch per yaw hypothesis, the yaws and the method:
-
-    - "rig": the recording is the training rig (or the model does not name its rig): its own views;
-    - "posed": voxel networks take posed views directly, in the canonical object frame (a simulation
-      world as it is; a real recording registered, its poses moved by the inverse object pose of each
-      yaw hypothesis of `capture.canonical.object_frame`);
-    - "fused" / "sim-views": other networks see `capture.canonical.to_rig_views`;
-    - "posed-given": `T_world_base` (the object's base pose in the recording's world, e.g. from
-      articulated registration) is the canonical frame, for voxel networks on posed recordings;
-      `camera_poses` may refine the recording's camera poses (e.g. re-aligned onto the fitted twin).
-    """
-    import tempfile
-
-    from spare_twin.observe import canonical
-
-    ps = _print_scale(rec, print_scale)
-    cfg = canonical.CanonicalConfig(yaw_hypotheses=yaw_hypotheses)
-    if training_rig is None or rec.rig == training_rig:
-        return [recording_sample(rec, net, frame, camera, print_scale)], (0.0,), "rig"
-    if net.arch == "geo_voxel" and net.mode == "mv":
-        if T_world_base is not None:
-            views = _posed_views(rec, net, frame, camera, np.linalg.inv(T_world_base), camera_poses)
-            return [_batch(views, net, ps)], (0.0,), "posed-given"
-        if _sim_world(rec):
-            if len(rec.cameras) == net.frames:
-                return [recording_sample(rec, net, frame, camera, print_scale)], (0.0,), "posed"
-            return [_batch(_posed_views(rec, net, frame, camera, np.eye(4)), net, ps)], (0.0,), "posed"
-        with tempfile.TemporaryDirectory(dir=workdir) as tmp:
-            reg = canonical.registered(rec, tmp, progress)
-            obj = canonical.object_frame(reg, cfg)
-            batches = [
-                _batch(_posed_views(reg, net, frame, camera, np.linalg.inv(obj.T_world_canonical(k))), net, ps)
-                for k in range(len(obj.yaws_rad))
-            ]
-        return batches, obj.yaws_rad, "posed"
-    if net.arch == "geo_voxel" and _sim_world(rec) and rec.camera(camera or rec.cameras[0].name).poses == "fixed":
-        # a fixed camera in the canonical world: its own frames keep the motion the temporal net reads
-        return [recording_sample(rec, net, frame, camera, print_scale)], (0.0,), "posed"
-    cv = canonical.to_rig_views(rec, training_rig, frame=frame, cfg=cfg, workdir=workdir, progress=progress)
-    return [_canonical_batch(cv, k, net, camera, ps) for k in range(len(cv.yaws_rad))], cv.yaws_rad, cv.method
-
-
-def _canonical_batch(cv, k: int, net: NetConfig, camera: str | None, print_scale: float) -> dict:
-    imgs = cv.depth_m[k] if net.input == "depth" else cv.grey[k]
-    V = len(imgs)
-    if net.mode == "mv":
-        if V != net.frames:
-            raise SpareTwinError(f"the network takes {net.frames} views, its training rig has {V} cameras")
-        views = [(imgs[i], cv.K[i], cv.T_world_camera[i]) for i in range(V)]
-    else:
-        # a fused recording is one still object: the temporal network sees one rig camera's view repeated
-        i = int(camera[3:]) if camera and camera.startswith("cam") and camera[3:].isdigit() else 0
-        if not 0 <= i < V:
-            raise SpareTwinError(f"--camera {camera}: the training rig has cameras cam0..cam{V - 1}")
-        views = [(imgs[i], cv.K[i], cv.T_world_camera[i])] * net.frames
-    return _batch(views, net, print_scale)
+def _floats(values) -> tuple[float, ...]:
+    return tuple(float(v) for v in values)
 
 
 def predict_recording(
-    rec_dir,
-    model_path=None,
+    rec_dir: str | Path,
+    model_path: str | Path | None = None,
     frame: int | None = None,
     camera: str | None = None,
     print_scale: float | None = None,
@@ -202,24 +88,17 @@ def predict_recording(
     device: str = "cpu",
     progress: bool = True,
     yaw_hypotheses: int = 4,
-    return_input: bool = False,
     T_world_base: np.ndarray | None = None,
     camera_poses: dict | None = None,
-) -> dict:
-    """The network's prediction for a recording; `return_input` adds `network_input`, the (V, H, W)
-    views it saw for the chosen yaw (numpy, not JSON: for logging). `T_world_base` fixes the object
-    frame of a posed recording for voxel networks, `camera_poses` refines its camera poses (see
-    `recording_batches`)."""
-    from spare_twin.recording import Recording
-
+) -> Prediction:
+    """The network's prediction for a recording (see `observe_recording` for `frame`, `camera`,
+    `print_scale`, `yaw_hypotheses`, `T_world_base` and `camera_poses`); `n_links` is the known count
+    a lengths-only model needs. The prediction carries the views the network saw (`network_input`)."""
     model_path = model_path or ckpt.default_model("predict")
     model, net, ck = ckpt.load_model(model_path, device)
-    rec = Recording.open(rec_dir)
-    if frame is not None and not 0 <= frame < rec.n_frames:
-        raise SpareTwinError(f"--frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
-    batches, yaws, method = recording_batches(
-        rec,
-        net,
+    seen = observe_recording(
+        rec_dir,
+        input_spec(net),
         ck["meta"].get("rig"),
         frame,
         camera,
@@ -229,32 +108,36 @@ def predict_recording(
         T_world_base=T_world_base,
         camera_poses=camera_poses,
     )
-    batch = {k: torch.cat([b[k] for b in batches]) for k in batches[0]}  # one forward pass for all yaws
+    batch = to_batch(seen.inputs)  # one forward pass for all yaws
     true_n = None
     if net.arch == "conv3d_per_n":
         if n_links is None:
-            raise SpareTwinError("--n-links: this model measures lengths for a known link count; give it")
-        true_n = torch.full((len(batches),), int(n_links))
+            raise SpareTwinError("n_links: this model measures lengths for a known link count; give it")
+        true_n = torch.full((len(seen.inputs),), int(n_links))
     res = decode(model, net, model_inputs(batch, device), true_n=true_n)
     # the most confident yaw hypothesis (count models); length-only models keep the first
     best = int(res["probabilities"].max(1).values.argmax()) if "probabilities" in res else 0
-    out: dict = {"n_links": None, "link_lengths_m": None, "probabilities": None}
+    n, lengths, probabilities, angles = None, None, None, None
     if "pred_n" in res:
         n = int(res["pred_n"][best])
-        out["n_links"] = n
-        out["probabilities"] = [float(p) for p in res["probabilities"][best]]
+        probabilities = _floats(res["probabilities"][best])
         if "lengths_e2e" in res:
-            out["link_lengths_m"] = [float(v) for v in res["lengths_e2e"][best, : n + 1]]
+            lengths = _floats(res["lengths_e2e"][best, : n + 1])
     elif "lengths_known" in res:
-        out["n_links"] = n_links
-        out["link_lengths_m"] = [float(v) for v in res["lengths_known"][best, : n_links + 1]]
-    if "angles" in res and out["n_links"]:
-        out["joint_angles_rad"] = [float(v) for v in res["angles"][best, : out["n_links"]]]
-    out["input"] = method
-    out["yaw_hypotheses_deg"] = [round(float(np.degrees(y)), 3) for y in yaws]
-    out["yaw_deg"] = out["yaw_hypotheses_deg"][best]
-    out["model"] = str(model_path)
-    out["recording"] = str(rec_dir)
-    if return_input:
-        out["network_input"] = batch["x"][best].numpy()
-    return out
+        n = n_links
+        lengths = _floats(res["lengths_known"][best, : n_links + 1])
+    if "angles" in res and n:
+        angles = _floats(res["angles"][best, :n])
+    yaws_deg = tuple(round(float(np.degrees(y)), 3) for y in seen.yaws_rad)
+    return Prediction(
+        n_links=n,
+        link_lengths_pu=lengths,
+        probabilities=probabilities,
+        joint_angles_rad=angles,
+        input=seen.method,
+        yaw_hypotheses_deg=yaws_deg,
+        yaw_deg=yaws_deg[best],
+        model=str(model_path),
+        recording=str(rec_dir),
+        network_input=batch["x"][best].numpy(),
+    )

@@ -1,7 +1,7 @@
 """Network and training configurations, and the named presets (one per row of the paper's Table 1,
 plus the geometry-aware networks of this project).
 
-A preset is a (NetConfig, TrainConfig) pair with a name. `spare-twin train --config cfg.json` takes
+A preset is a (NetConfig, TrainConfig) pair with a name. A training configuration (`resolve`) is
 a JSON object ``{"preset": NAME, "net": {...overrides}, "train": {...overrides}}``, so any field
 below can be changed without code.
 """
@@ -9,6 +9,7 @@ below can be changed without code.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 from spare_twin.errors import SpareTwinError
@@ -25,7 +26,7 @@ class GridConfig:
 
     Extents are in paper units (world metres / print_scale), so the grid follows the object's scale
     and a length read off it is already in the unit E_L is measured in. World frame: z up, table at
-    z = 0, the base's joint axes along +y (CONTRACTS.md), so the planar chain moves in x-z.
+    z = 0, the base's joint axes along +y (docs/CONTRACTS.md), so the planar chain moves in x-z.
     """
 
     x_range: tuple[float, float] = (-1.9, 1.9)
@@ -123,6 +124,37 @@ class TrainConfig:
     """DataLoader worker processes (0: load in the training process)."""
     threads: int = 0
     """torch intra-op threads (0: leave torch's default)."""
+
+    def __post_init__(self):
+        # Errors name the field as a configuration file spells it (train.<field>).
+        def whole(name: str, least: int, optional: bool = False) -> None:
+            v = getattr(self, name)
+            if optional and v is None:
+                return
+            if not isinstance(v, int) or isinstance(v, bool) or v < least:
+                raise SpareTwinError(f"train.{name} {v!r}: must be a whole number, at least {least}")
+
+        def number(name: str, positive: bool = False, below: float = math.inf) -> None:
+            v = getattr(self, name)
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+            if not (ok and (v > 0 if positive else v >= 0) and v < below):
+                bound = "positive" if positive else "zero or more"
+                raise SpareTwinError(
+                    f"train.{name} {v!r}: must be {bound}" + (f" and below {below}" if below < math.inf else "")
+                )
+
+        for name in ("epochs", "batch_size"):
+            whole(name, 1)
+        for name in ("seed", "workers", "threads"):
+            whole(name, 0)
+        for name in ("samples_per_epoch", "val_samples"):
+            whole(name, 1, optional=True)
+        number("lr", positive=True)
+        for name in ("weight_decay", "count_weight", "length_weight", "angle_weight"):
+            number(name)
+        for name in ("pose_yaw_jitter_deg", "pose_xy_jitter_m"):
+            number(name)
+        number("label_smoothing", below=1.0)
 
 
 @dataclass(frozen=True)
@@ -288,7 +320,7 @@ PRESETS: dict[str, Preset] = {
 
 def get_preset(name: str) -> Preset:
     if name not in PRESETS:
-        raise SpareTwinError(f"--preset: unknown preset {name!r} (see --list-presets): {', '.join(PRESETS)}")
+        raise SpareTwinError(f"preset {name!r}: unknown (choose from {', '.join(PRESETS)})")
     return PRESETS[name]
 
 
@@ -323,19 +355,13 @@ def net_from_dict(d: dict, where: str = "net") -> NetConfig:
         raise SpareTwinError(f"{where}: {exc}") from None
 
 
-def train_from_dict(d: dict, where: str = "train") -> TrainConfig:
-    try:
-        return TrainConfig(**d)
-    except TypeError as exc:
-        raise SpareTwinError(f"{where}: {exc}") from None
-
-
-def resolve(preset: str | None, config: dict | None, source: str = "--config") -> Preset:
-    """A preset, with the overrides of a --config JSON object applied."""
+def resolve(preset: str | None, config: dict | None, source: str = "configuration") -> Preset:
+    """A preset, with the overrides of a configuration object (`source` names it in errors) applied:
+    ``{"preset": NAME, "net": {...}, "train": {...}}``; its "preset" wins over `preset`."""
     config = dict(config or {})
     name = config.pop("preset", None) or preset
     if name is None:
-        raise SpareTwinError(f'{source}: name a base preset (--preset NAME or "preset" in the file)')
+        raise SpareTwinError(f'preset: none given, and {source} names none (a "preset" key)')
     base = get_preset(name)
     net = _replace(base.net, config.pop("net", {}), f"{source}: net")
     train = _replace(base.train, config.pop("train", {}), f"{source}: train")

@@ -1,19 +1,23 @@
-"""Training: seeded, checkpointed every epoch (atomically), resumable, with a learning curve.
+"""Training: seeded, checkpointed every epoch (atomically), resumable, with a learning curve; in one
+process or data-parallel under torchrun (DistributedDataParallel, see distributed.py).
 
 RUN_DIR gets ``last.pt`` (full state: model, optimiser, epoch, history, RNG), ``best.pt`` /
 ``model.pt`` (the best epoch on validation, lean, with metadata), ``history.json``,
-``learning_curve.png`` and ``MODEL_CARD.md``.
+``learning_curve.png`` and ``MODEL_CARD.md``, all written by rank 0 alone.
 
-Determinism: the model is initialised from ``torch.manual_seed(seed)``; each epoch's sample order
-comes from a generator seeded with (seed, epoch), so a resumed run sees the same batches as an
-uninterrupted one; the global RNG (dropout) is restored from ``last.pt``.
+Determinism: the model is initialised from ``torch.manual_seed(seed)`` (on every rank, so all start
+equal); each epoch's sample order comes from a generator seeded with (seed, epoch), so a resumed run
+sees the same batches as an uninterrupted one; the global RNG (dropout) is restored from ``last.pt``.
+Data-parallel: a DistributedSampler deals that epoch order out to the N processes (rank r takes
+items r, r + N, ...), the batch size is per process, and ranks other than 0 reseed their RNG from
+(seed, epoch, rank) every epoch, so a resumed run repeats them too. With N = 1 the order, the RNG
+stream and so the weights are those of a single process.
 """
 
 from __future__ import annotations
 
 import json
 import math
-import shutil
 import sys
 import time
 from pathlib import Path
@@ -21,24 +25,16 @@ from pathlib import Path
 import numpy as np
 import torch
 from torch import nn
+from torch.utils.data import DataLoader, DistributedSampler, Subset
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.data import dataset_rig, open_on_the_fly, open_split
+from spare_twin.nets.distributed import Group, pick_device, session  # noqa: F401  (pick_device: evaluate imports it here)
 from spare_twin.nets.models import build_model, decode, input_norms, model_inputs
 from spare_twin.nets.presets import NetConfig, Preset, TrainConfig
-
-
-def pick_device(name: str = "auto") -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise SpareTwinError("--device cuda: no CUDA device here")
-    if name not in ("cpu", "cuda"):
-        raise SpareTwinError(f"--device {name}: choose auto, cpu or cuda")
-    return torch.device(name)
 
 
 def compute_loss(net: NetConfig, tr: TrainConfig, out: dict, batch: dict, device) -> torch.Tensor:
@@ -93,8 +89,8 @@ def run_inference(
     from tqdm import tqdm
 
     model.eval()
-    sub = ds if indices is None else torch.utils.data.Subset(ds, indices)
-    loader = torch.utils.data.DataLoader(sub, batch_size=batch_size, shuffle=False)
+    sub = ds if indices is None else Subset(ds, indices)
+    loader = DataLoader(sub, batch_size=batch_size, shuffle=False)
     acc: dict[str, list] = {}
     for batch in tqdm(loader, desc=desc, leave=False, file=sys.stderr, disable=not progress):
         n = batch["n_links"].to(device)
@@ -143,6 +139,53 @@ def _epoch_indices(n_data: int, tr: TrainConfig, epoch: int) -> list[int]:
     return torch.randint(0, n_data, (k,), generator=g).tolist()
 
 
+def _has_batchnorm(model) -> bool:
+    return any(isinstance(m, nn.modules.batchnorm._BatchNorm) for m in model.modules())
+
+
+def _epoch_loader(train_src, data_dir, net, tr: TrainConfig, epoch: int, on_the_fly: bool, group: Group):
+    """This process's share of epoch `epoch`: (loader, batches to take). Every rank takes the same number
+    of batches of the same sizes, so no rank waits in a gradient all-reduce that another skipped."""
+    if on_the_fly:
+        n_ep = tr.samples_per_epoch or len(train_src)
+        src = open_on_the_fly(
+            data_dir, net, tr.seed * 100_003 + epoch, n_ep, augment=tr, rank=group.rank, world_size=group.world_size
+        )
+        per_rank = -(-n_ep // group.world_size)
+        return DataLoader(src, batch_size=tr.batch_size, num_workers=tr.workers), math.ceil(per_rank / tr.batch_size)
+    subset = Subset(train_src, _epoch_indices(len(train_src), tr, epoch))
+    # shuffle=False: the order is the seeded epoch order above; rank r takes items r, r + N, ...
+    sampler = DistributedSampler(subset, num_replicas=group.world_size, rank=group.rank, shuffle=False)
+    loader = DataLoader(
+        subset,
+        batch_size=tr.batch_size,
+        sampler=sampler,
+        num_workers=tr.workers,
+        drop_last=len(sampler) > tr.batch_size,
+    )
+    return loader, len(loader)
+
+
+def _start(preset: Preset, data_dir, out_dir: Path, resume: bool, group: Group) -> dict | None:
+    """Rank 0 checks the run folder and reads last.pt (on resume); every rank gets the state (or the error)."""
+    last_path = out_dir / "last.pt"
+    error, state = None, None
+    if group.is_main:
+        if resume and not last_path.is_file():
+            error = f"resume: {last_path} does not exist (nothing to resume)"
+        elif not resume and last_path.exists():
+            error = f"out_dir {out_dir}: already holds a run (resume it, or write to another folder)"
+        elif resume:
+            try:
+                state = ckpt.load(last_path, "cpu")
+            except SpareTwinError as exc:
+                error = str(exc)
+        else:
+            out_dir.mkdir(parents=True, exist_ok=True)
+    group.raise_together(error)
+    return group.broadcast(state)
+
+
 def train(
     preset: Preset,
     data_dir,
@@ -153,46 +196,52 @@ def train(
     command: str = "",
     progress: bool = True,
 ) -> dict:
+    """Train `preset` on `data_dir` into `out_dir`: in this process, or as one rank of a torchrun group
+    (every rank returns rank 0's summary)."""
+    with session(device) as (group, dev):
+        return _train(preset, data_dir, Path(out_dir), dev, group, on_the_fly, resume, command, progress)
+
+
+def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resume, command, progress) -> dict:
     from tqdm import tqdm
 
     net, tr = preset.net, preset.train
-    out_dir = Path(out_dir)
-    dev = pick_device(device)
+    main = group.is_main
+    progress = progress and main
     if tr.threads:
         torch.set_num_threads(tr.threads)
     last_path = out_dir / "last.pt"
-    if resume and not last_path.is_file():
-        raise SpareTwinError(f"--resume: {last_path} does not exist (nothing to resume)")
-    if not resume and last_path.exists():
-        raise SpareTwinError(f"--out {out_dir}: already holds a run (use --resume to continue it, or another --out)")
-    out_dir.mkdir(parents=True, exist_ok=True)
+    state = _start(preset, data_dir, out_dir, resume, group)
 
     torch.manual_seed(tr.seed)
     np.random.seed(tr.seed)
     model = build_model(net).to(dev)
-    stored_train = open_split(data_dir, "train", net, augment=tr)
-    train_src = stored_train  # with --on-the-fly, fresh samples are drawn per epoch below
-    try:
-        val_ds = open_split(data_dir, "val", net)
-    except SpareTwinError:
-        val_ds = None  # a folder without a validation split: select on the training loss instead
+    train_src = open_split(data_dir, "train", net, augment=tr)  # with on_the_fly: only its size is used
+    val_ds = None
+    if main:
+        try:
+            val_ds = open_split(data_dir, "val", net)
+        except SpareTwinError:
+            val_ds = None  # a folder without a validation split: select on the training loss instead
     opt = torch.optim.AdamW(model.parameters(), lr=tr.lr, weight_decay=tr.weight_decay)
     meta = ckpt.new_meta(data_dir, dataset_rig(data_dir), tr.seed, command)
     meta["parameters"] = int(sum(p.numel() for p in model.parameters()))
     meta["on_the_fly"] = bool(on_the_fly)
+    if group.world_size > 1:
+        meta["data_parallel_processes"] = group.world_size
     history: list[dict] = []
     start_epoch, best_score, train_time_s = 0, -math.inf, 0.0
 
-    if resume:
-        state = ckpt.load(last_path, dev)
+    if state is not None:
         if (
             state.get("preset") != preset.name
             or state.get("net") != ckpt.model_record(preset.name, net, tr, model, {})["net"]
         ):
-            raise SpareTwinError(f"--resume: {last_path} was trained with a different network configuration")
+            raise SpareTwinError(f"resume: {last_path} was trained with a different network configuration")
         model.load_state_dict(state["state_dict"])
         opt.load_state_dict(state["optimizer"])
-        torch.set_rng_state(state["rng"])
+        if main:
+            torch.set_rng_state(state["rng"])
         history, start_epoch = state["history"], state["epoch"] + 1
         best_score, train_time_s = state["best_score"], state["train_time_s"]
         meta = state["meta"]
@@ -207,7 +256,14 @@ def train(
             "epochs_trained": start.get("meta", {}).get("epochs_trained"),
         }
     else:
-        measure_normalization(model, stored_train, tr.seed)
+        measure_normalization(model, train_src, tr.seed)
+
+    core = model  # the module itself: validated and saved; `model` is what trains (DDP-wrapped in a group)
+    if group.active:
+        # Some heads get no gradient on some batches (per-count regressors, angles of temporal input).
+        model = nn.parallel.DistributedDataParallel(
+            core, device_ids=[dev.index] if dev.type == "cuda" else None, find_unused_parameters=True
+        )
 
     val_idx = None
     if val_ds is not None and tr.val_samples is not None and tr.val_samples < len(val_ds):
@@ -215,26 +271,15 @@ def train(
             : tr.val_samples
         ].tolist()
 
+    writer = _RunWriter(preset, core, opt, val_ds, val_idx, dev, out_dir, progress) if main else None
     for epoch in range(start_epoch, tr.epochs):
         t0 = time.time()
+        if group.rank:
+            torch.manual_seed(tr.seed * 1_000_003 + epoch * 1_009 + group.rank)
         lr = tr.lr * 0.5 * (1 + math.cos(math.pi * epoch / tr.epochs))  # cosine, recomputed: resume-safe
         for g in opt.param_groups:
             g["lr"] = lr
-        if on_the_fly:
-            n_ep = tr.samples_per_epoch or len(stored_train)
-            src = open_on_the_fly(data_dir, net, tr.seed * 100_003 + epoch, n_ep, augment=tr)
-            loader = torch.utils.data.DataLoader(src, batch_size=tr.batch_size, num_workers=tr.workers)
-            n_batches = math.ceil(n_ep / tr.batch_size)
-        else:
-            idx = _epoch_indices(len(train_src), tr, epoch)
-            loader = torch.utils.data.DataLoader(
-                torch.utils.data.Subset(train_src, idx),
-                batch_size=tr.batch_size,
-                shuffle=False,
-                num_workers=tr.workers,
-                drop_last=len(idx) > tr.batch_size,
-            )
-            n_batches = len(loader)
+        loader, n_batches = _epoch_loader(train_src, data_dir, net, tr, epoch, on_the_fly, group)
         model.train()
         losses = []
         bar = tqdm(
@@ -243,8 +288,8 @@ def train(
         for b, batch in enumerate(loader):
             if b >= n_batches:
                 break
-            if batch["x"].shape[0] < 2 and any(isinstance(m, nn.modules.batchnorm._BatchNorm) for m in model.modules()):
-                continue  # BatchNorm cannot train on a batch of one
+            if batch["x"].shape[0] < 2 and _has_batchnorm(core):
+                continue  # BatchNorm cannot train on a batch of one (the same batch on every rank)
             out = forward_train(model, net, batch, dev)
             loss = compute_loss(net, tr, out, batch, dev)
             opt.zero_grad(set_to_none=True)
@@ -255,15 +300,35 @@ def train(
             bar.update(1)
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
         bar.close()
+        if group.active:
+            total, count = group.sum(sum(losses), len(losses))
+            train_loss = total / count if count else None
+        else:
+            train_loss = float(np.mean(losses)) if losses else None
         train_time_s += time.time() - t0
-        row = {
-            "epoch": epoch + 1,
-            "lr": lr,
-            "train_loss": float(np.mean(losses)) if losses else None,
-            "time_s": time.time() - t0,
-        }
-        if val_ds is not None:
-            pred = run_inference(model, net, val_ds, dev, tr.batch_size, val_idx, "validate", progress)
+        if main:
+            row = {"epoch": epoch + 1, "lr": lr, "train_loss": train_loss, "time_s": time.time() - t0}
+            best_score = writer.end_epoch(row, history, meta, best_score, train_time_s)
+        group.barrier()  # rank 0 has written this epoch's checkpoint
+
+    summary = _finish(preset, out_dir, history, train_time_s) if main else None
+    return group.broadcast(summary)
+
+
+class _RunWriter:
+    """Rank 0's side of every epoch: validate, keep the best model, write last.pt, the history and the curve."""
+
+    def __init__(self, preset: Preset, core, opt, val_ds, val_idx, dev, out_dir: Path, progress: bool):
+        self.preset, self.core, self.opt, self.dev = preset, core, opt, dev
+        self.val_ds, self.val_idx, self.out_dir, self.progress = val_ds, val_idx, out_dir, progress
+
+    def end_epoch(self, row: dict, history: list, meta: dict, best_score: float, train_time_s: float) -> float:
+        net, tr, core, out_dir = self.preset.net, self.preset.train, self.core, self.out_dir
+        epoch = row["epoch"] - 1
+        if self.val_ds is not None:
+            pred = run_inference(
+                core, net, self.val_ds, self.dev, tr.batch_size, self.val_idx, "validate", self.progress
+            )
             m = summarize(pred)
             row.update({f"val_{k}": v for k, v in m.items() if k != "per_n" and v is not None and k != "instances"})
             score = _score(m)
@@ -271,36 +336,35 @@ def train(
             score = -(row["train_loss"] or 0.0)
         history.append(row)
         meta.update(epochs_trained=epoch + 1, train_time_s=train_time_s)
+        name = self.preset.name
         if score > best_score:
             best_score = score
-            best = ckpt.model_record(
-                preset.name,
-                net,
-                tr,
-                model,
-                dict(meta, best_epoch=epoch + 1, val_metrics={k: v for k, v in row.items() if k.startswith("val_")}),
-            )
+            val = {k: v for k, v in row.items() if k.startswith("val_")}
+            best = ckpt.model_record(name, net, tr, core, dict(meta, best_epoch=epoch + 1, val_metrics=val))
             ckpt.save(out_dir / "best.pt", best)
-        state = ckpt.model_record(preset.name, net, tr, model, meta)
+        state = ckpt.model_record(name, net, tr, core, meta)
         state.update(
-            optimizer=opt.state_dict(),
+            optimizer=self.opt.state_dict(),
             epoch=epoch,
             history=history,
             rng=torch.get_rng_state(),
             best_score=best_score,
             train_time_s=train_time_s,
         )
-        ckpt.save(last_path, state)  # written last: a crash before here repeats this epoch on resume
+        ckpt.save(out_dir / "last.pt", state)  # written last: a crash before here repeats this epoch on resume
         write_json_atomic(out_dir / "history.json", history)
-        metrics.write_learning_curve_png(history, out_dir / "learning_curve.png", preset.name)
+        metrics.write_learning_curve_png(history, out_dir / "learning_curve.png", name)
         shown = {
             k: round(v, 4)
             for k, v in row.items()
             if k in ("train_loss", "val_count_accuracy", "val_E_L") and v is not None
         }
         print(f"epoch {epoch + 1}/{tr.epochs} {json.dumps(shown)} ({row['time_s']:.0f} s)", file=sys.stderr)
+        return best_score
 
-    # model.pt: the best epoch, with the final training time in its metadata
+
+def _finish(preset, out_dir: Path, history: list, train_time_s: float) -> dict:
+    """Rank 0: model.pt (the best epoch, with the final training time in its metadata) and its card."""
     best = ckpt.load(out_dir / "best.pt")
     best["meta"].update(train_time_s=train_time_s, epochs_trained=len(history))
     ckpt.save(out_dir / "model.pt", best)
@@ -315,7 +379,3 @@ def train(
         "val": best["meta"].get("val_metrics", {}),
         "learning_curve": str(out_dir / "learning_curve.png"),
     }
-
-
-def copy_run_model(run_dir, dst) -> None:
-    shutil.copyfile(Path(run_dir) / "model.pt", dst)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import trimesh
 
-from spare_twin.config import ChainSpec, counterbore_depth_mm, counterbore_diameter_mm
+from spare_twin.config import ChainSpec, counterbore_depth_mm
 from spare_twin.object.parts import Part
 
 
@@ -48,17 +48,6 @@ def measured_pin_clearance_mm(spec: ChainSpec, meshes: dict[str, trimesh.Trimesh
     hole = hole_radius_mm(meshes[parent], (length, 0.0), z_hole)
     shaft = rod_radius_mm(meshes[f"pin_joint{joint}"], (0.0, 0.0), p.pin_head_height_mm + 1.0)
     return hole - shaft
-
-
-def design_walls_mm(spec: ChainSpec) -> dict[str, float]:
-    p = spec.parts
-    return {
-        "beside_pin_hole": (p.link_width_mm - (p.pin_diameter_mm + 2 * p.pin_clearance_mm)) / 2,
-        "beside_counterbore": (p.link_width_mm - counterbore_diameter_mm(p)) / 2,
-        "under_counterbore": p.link_thickness_mm - counterbore_depth_mm(p),
-        "pin_head_rim": (p.pin_head_diameter_mm - p.pin_diameter_mm) / 2,
-        "socket_wall": p.socket_wall_mm,
-    }
 
 
 def part_report(spec: ChainSpec, part: Part, mesh: trimesh.Trimesh, file: str) -> dict:

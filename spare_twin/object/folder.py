@@ -11,15 +11,16 @@ preview.png          the assembled object at a random pose, rendered from the UR
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from spare_twin.config import ChainSpec
+from spare_twin.config import ChainSpec, design_walls_mm, sample_chain
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import atomic_dir, encode_png, read_json, write_bytes_atomic, write_json_atomic
-from spare_twin.object import checks
+from spare_twin.object import checks, kinematics
 from spare_twin.object.kinematics import joint_limits_rad, joint_origin, keepout_height_m
 from spare_twin.object.parts import (
     CIRCLE_SEGMENTS,
@@ -28,6 +29,7 @@ from spare_twin.object.parts import (
     clearance_coupon,
     pin_shaft_length_mm,
 )
+from spare_twin.object.preview import render_preview
 from spare_twin.object.stl import stl_bytes, to_trimesh
 from spare_twin.object.urdf import build_robot, joint_name, link_name, urdf_bytes
 
@@ -61,11 +63,11 @@ class ObjectFolder:
     @property
     def link_lengths_m(self) -> np.ndarray:
         """(n + 1,) link lengths of the printed object (metres), base first."""
-        return np.asarray(self.spec.link_lengths_pu, dtype=np.float64) * self.spec.print_scale
+        return kinematics.link_lengths_m(self.spec)
 
     @property
     def link_half_width_m(self) -> float:
-        return self.spec.parts.link_width_mm / 2000.0
+        return kinematics.link_half_width_m(self.spec)
 
 
 def object_json(spec: ChainSpec) -> dict:
@@ -124,28 +126,99 @@ def build_object(spec: ChainSpec, out_dir: str | Path, preview: bool = True, pro
     out_dir = Path(out_dir)
     step = progress or (lambda what: None)
     with atomic_dir(out_dir) as tmp:
-        step("modelling parts")
+        step(BUILD_STEPS[0])
         parts, meshes, files = _write_parts_and_urdf(spec, tmp, CIRCLE_SEGMENTS)
-        step("writing STL files")
+        step(BUILD_STEPS[1])
         coupon = to_trimesh(clearance_coupon(spec.parts))
         write_bytes_atomic(tmp / "clearance_coupon.stl", stl_bytes(coupon))
 
-        step("checking printability")
+        step(BUILD_STEPS[2])
         report = print_report(spec, parts, meshes, files, coupon)
         failed = [p["file"] for p in report["parts"] if not p["passed"]]
         if failed:
             raise SpareTwinError(f"parts fail the print checks: {', '.join(failed)}")
         write_json_atomic(tmp / "print_report.json", report)
 
-        step("writing assembly notes")
+        step(BUILD_STEPS[3])
         write_bytes_atomic(tmp / "ASSEMBLY.md", assembly_md(spec, report).encode())
         if preview:
-            step("rendering preview")
-            from spare_twin.object.preview import render_preview
-
+            step(PREVIEW_STEP)
             rgb = render_preview(spec, tmp / f"{spec.name}.urdf", seed=spec.seed or 0)
             write_bytes_atomic(tmp / "preview.png", encode_png(rgb[:, :, ::-1].copy(), compression=6))
     return load_object(out_dir)
+
+
+@dataclass(frozen=True)
+class ObjectSummary:
+    """What `make_object` built: the folder, whether its parts passed the print checks, its files."""
+
+    folder: ObjectFolder
+    print_checks_passed: bool
+    files: tuple[str, ...]
+
+    def to_json(self) -> dict:
+        spec = self.folder.spec
+        return {
+            "out": str(self.folder.root),
+            "n_links": spec.n_links,
+            "link_lengths_m": list(spec.link_lengths_pu),  # paper units under the contract's key
+            "link_lengths_mm": [round(x, 3) for x in spec.link_lengths_mm],
+            "print_scale": spec.print_scale,
+            "urdf": self.folder.urdf_path.name,
+            "print_checks_passed": self.print_checks_passed,
+            "files": list(self.files),
+        }
+
+
+def object_spec(
+    n_links: int | None = None,
+    seed: int = 0,
+    config: str | Path | None = None,
+    print_scale: float | None = None,
+    clearance_mm: float | None = None,
+    bed_mm: tuple[float, float] | None = None,
+    name: str | None = None,
+) -> ChainSpec:
+    """The chain to build: sampled from the paper's distribution (n_links, seed) or read from a
+    configuration file (config), then with the given print settings replaced."""
+    if (n_links is None) == (config is None):
+        raise SpareTwinError("n_links, config: give exactly one (a sampled chain or a configuration file)")
+    spec = ChainSpec.from_json_file(config) if config is not None else sample_chain(n_links, seed=seed)
+    changes: dict = {}
+    if print_scale is not None:
+        changes["print_scale"] = print_scale
+    if name is not None:
+        changes["name"] = name
+    if clearance_mm is not None:
+        changes["parts"] = dataclasses.replace(spec.parts, pin_clearance_mm=clearance_mm)
+    if bed_mm is not None:
+        changes["printer"] = dataclasses.replace(spec.printer, bed_x_mm=bed_mm[0], bed_y_mm=bed_mm[1])
+    return dataclasses.replace(spec, **changes) if changes else spec
+
+
+def make_object(
+    out_dir: str | Path,
+    n_links: int | None = None,
+    seed: int = 0,
+    config: str | Path | None = None,
+    print_scale: float | None = None,
+    clearance_mm: float | None = None,
+    bed_mm: tuple[float, float] | None = None,
+    name: str | None = None,
+    preview: bool = True,
+    progress=None,
+) -> ObjectSummary:
+    """`spare-twin object`: the chain of `object_spec` built into `out_dir` (`build_object`), summarised."""
+    spec = object_spec(n_links, seed, config, print_scale, clearance_mm, bed_mm, name)
+    obj = build_object(spec, out_dir, preview=preview, progress=progress)
+    report = read_json(obj.root / "print_report.json")
+    files = tuple(sorted(p.name for p in obj.root.iterdir() if p.is_file()))
+    return ObjectSummary(obj, bool(report["passed"]), files)
+
+
+#: The progress steps `build_object` reports, in order (the last one only with a preview).
+BUILD_STEPS = ("modelling parts", "writing STL files", "checking printability", "writing assembly notes")
+PREVIEW_STEP = "rendering preview"
 
 
 def load_object(root: str | Path) -> ObjectFolder:
@@ -172,7 +245,7 @@ def load_object(root: str | Path) -> ObjectFolder:
 def print_report(spec, parts, meshes, files, coupon) -> dict:
     entries = [checks.part_report(spec, p, meshes[p.name], files[p.name]) for p in parts]
     measured = [checks.measured_pin_clearance_mm(spec, meshes, k) for k in range(1, spec.n_links + 1)]
-    walls = checks.design_walls_mm(spec)
+    walls = design_walls_mm(spec.parts)
     min_wall = spec.printer.min_wall_mm
     c = spec.parts.pin_clearance_mm
     summary = {

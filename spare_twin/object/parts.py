@@ -153,20 +153,19 @@ def clearance_coupon(p: PartDims) -> m3d.Manifold:
 
     Print it with one pin; the smallest hole the pin turns freely in is the clearance to configure.
     """
-    pitch = p.pin_head_diameter_mm + 4.0
-    n = len(COUPON_CLEARANCES_MM)
-    length = pitch * (n + 1)
+    length = coupon_hole_x_mm(p, len(COUPON_CLEARANCES_MM))  # one hole pitch past the last hole
     width = p.link_width_mm + 4.0
     t = p.link_thickness_mm
     bar = m3d.Manifold.cube((length, width, t)).translate((0.0, -width / 2, 0.0))
     for i, c in enumerate(COUPON_CLEARANCES_MM):
-        bar -= hole(p.pin_diameter_mm / 2 + c, t + 2.0).translate((pitch * (i + 1), 0.0, 0.0))
+        bar -= hole(p.pin_diameter_mm / 2 + c, t + 2.0).translate((coupon_hole_x_mm(p, i), 0.0, 0.0))
     # A V-notch in the end nearest the smallest clearance tells the holes' order.
     notch = m3d.CrossSection([[(0.0, -2.0), (2.5, 0.0), (0.0, 2.0), (-1.0, 0.0)]]).extrude(t + 2.0)
     return bar - notch.translate((0.0, 0.0, -1.0))
 
 
 def coupon_hole_x_mm(p: PartDims, index: int) -> float:
+    """Distance of the coupon's hole `index` from its notched end (holes a pin head plus 4 mm apart)."""
     return (p.pin_head_diameter_mm + 4.0) * (index + 1)
 
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 import yourdfpy
+from lxml import etree
 
 from spare_twin.config import COLORS, ChainSpec
 from spare_twin.object.kinematics import JOINT_AXIS, joint_limits_rad, joint_origin
@@ -97,8 +98,6 @@ def build_robot(
 
 def urdf_bytes(robot: yourdfpy.Robot) -> bytes:
     """Serialise with yourdfpy (no mesh loading needed to write)."""
-    from lxml import etree
-
     # Writing needs no mesh files: an identity filename handler stops yourdfpy looking for them.
     urdf = yourdfpy.URDF(robot=robot, build_scene_graph=False, load_meshes=False, filename_handler=lambda fname: fname)
     return etree.tostring(urdf.write_xml(), pretty_print=True, xml_declaration=True, encoding="UTF-8")

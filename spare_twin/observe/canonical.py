@@ -15,8 +15,9 @@ space:
    foot, layers along y as wide as the links) and its sign, so `object_frame` returns yaw hypotheses
    (default the 4 rotations by 90 deg about z); predict runs the network on each and keeps the most
    confident output (largest count probability).
-3. rendering: the points are splatted into each rig camera at the network resolution with a z-buffer
-   (disc radius from the cloud's point spacing, one pass of small-hole filling), over an analytic table
+3. rendering (`spare_twin.observe.splat`): the points are splatted into each rig camera at the network
+   resolution with a z-buffer (disc radius from the cloud's point spacing, one pass of small-hole
+   filling), over an analytic table
    (the plane z = 0, the twin's 1 m square top, its grey under the twin's default light) so the views
    look like the training images, which contain the table. Grey comes from the fused colours.
 
@@ -29,20 +30,21 @@ rendered the same way.
 from __future__ import annotations
 
 import math
+import os
 import shutil
+import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.frames import fit_view
+from spare_twin.capture.pipeline import fuse_recording, register_recording
+from spare_twin.dataset.synthetic import RIG_NAME, synthetic_rig
 from spare_twin.errors import SpareTwinError
-
-#: The twin's table (spare_twin.sim.twin.Twin): a 1 m square top at z = 0 centred on the base.
-TABLE_HALF_SIZE_M = 0.5
-#: Grey (BT.601 luma in [0, 1]) of that table under the twin's default Lighting, and of the empty
-#: background (TinyRenderer clears to white), as measured on renders (tests/test_canonical.py checks both).
-TABLE_GREY = 120 / 255
-BACKGROUND_GREY = 1.0
+from spare_twin.observe.splat import BACKGROUND_GREY, TABLE_GREY, point_spacing_m, splat, table_view
+from spare_twin.recording import Recording
+from spare_twin.sim.rig import Rig, load_rig
 
 
 @dataclass(frozen=True)
@@ -118,41 +120,25 @@ def rot_z(angle_rad: float) -> np.ndarray:
     return T
 
 
-def resolve_rig(rig):
-    """A Rig from a Rig, a rig dict, a name in capture/rigs/ or the synthetic ring of nets.synthetic."""
-    from spare_twin.sim.rig import Rig, load_rig
-
+def resolve_rig(rig: Rig | dict | str) -> Rig:
+    """A Rig from a Rig, a rig dict, a name in capture/rigs/ or the synthetic ring's name
+    (`spare_twin.dataset.synthetic.RIG_NAME`)."""
     if isinstance(rig, Rig):
         return rig
     if isinstance(rig, dict):
         return Rig.from_dict(rig, source="rig")
-    from spare_twin.dataset.synthetic import RIG_NAME
-
     if rig == RIG_NAME:
-        # nets.synthetic.rig() as a Rig: ring 0.36 m, 0.18 m high, aim (0, 0, 0.12), f = 125 px at 96 x 128
-        return Rig(
-            name=RIG_NAME,
-            radius_m=0.36,
-            heights_m=(0.18,),
-            look_at_m=(0.0, 0.0, 0.12),
-            azimuth0_deg=22.5,
-            fov_y_deg=math.degrees(2 * math.atan(48.0 / 125.0)),
-        )
+        return synthetic_rig()
     return load_rig(rig)
 
 
 # -- the object ------------------------------------------------------------------------------
-def registered(rec, workdir: str | Path, progress: bool = True):
+def registered(rec: Recording, workdir: str | Path, progress: bool = True) -> Recording:
     """`rec` if it is registered, else a registered copy in `workdir` (images hard-linked): predict
     never writes into the user's recording. Raises a one-line error when no object is found."""
-    import os
-
-    from spare_twin.capture.pipeline import register_recording
-    from spare_twin.recording import Recording
-
-    reg = rec.meta.get("registration")
-    if reg:
-        if not reg.get("object"):
+    reg = rec.registration
+    if reg is not None:
+        if not reg.object:
             raise SpareTwinError(f"{rec.root / 'fused.ply'}: no object found when it was registered")
         return rec
     copy = Path(workdir) / "registered"
@@ -176,18 +162,15 @@ def registered(rec, workdir: str | Path, progress: bool = True):
 
 def _yaws(n: int) -> tuple[float, ...]:
     if n not in (1, 2, 4):
-        raise SpareTwinError(f"yaw hypotheses must be 1, 2 or 4, not {n}")
+        raise SpareTwinError(f"yaw_hypotheses {n}: must be 1, 2 or 4")
     return tuple(2 * math.pi * k / n for k in range(n))
 
 
-def object_frame(rec, cfg: CanonicalConfig = CanonicalConfig(), frame: int | None = None) -> ObjectFrame:
+def object_frame(rec: Recording, cfg: CanonicalConfig = CanonicalConfig(), frame: int | None = None) -> ObjectFrame:
     """The object's points in the canonical frame, from a registered recording (see the module doc) or,
     for an unregistered simulation recording with posed cameras, from that frame's views."""
-    reg = rec.meta.get("registration")
-    if not reg and rec.source.get("kind") == "sim" and all(c.poses != "unknown" for c in rec.cameras):
+    if rec.in_sim_world:
         return _sim_object(rec, cfg, rec.n_frames // 2 if frame is None else frame)
-    from spare_twin.capture.pipeline import fuse_recording
-
     pts_w, cols, T_wo = fuse_recording(rec, object_only=True)
     T_ow = np.linalg.inv(T_wo)
     pts = pts_w @ T_ow[:3, :3].T + T_ow[:3, 3]
@@ -242,7 +225,7 @@ def layer_yaw_rad(points: np.ndarray, cfg: CanonicalConfig = CanonicalConfig(), 
     return float(fine[int(np.argmax([score(a) for a in fine]))])
 
 
-def _sim_object(rec, cfg: CanonicalConfig, frame: int) -> ObjectFrame:
+def _sim_object(rec: Recording, cfg: CanonicalConfig, frame: int) -> ObjectFrame:
     """Back-project every camera's depth at `frame` (simulation: the world is the canonical frame)."""
     pts, cols = [], []
     for cam in rec.cameras:
@@ -267,92 +250,6 @@ def _sim_object(rec, cfg: CanonicalConfig, frame: int) -> ObjectFrame:
     return ObjectFrame(pts, cols, np.eye(4), (0.0,), "sim-views")
 
 
-# -- rendering -------------------------------------------------------------------------------
-def point_spacing_m(points: np.ndarray) -> float:
-    """Median nearest-neighbour distance (the cloud's sampling step)."""
-    import open3d as o3d
-
-    if len(points) < 2:
-        return 0.004
-    pc = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(np.asarray(points, np.float64)))
-    return float(np.median(np.asarray(pc.compute_nearest_neighbor_distance())))
-
-
-def table_view(K: np.ndarray, T_world_camera: np.ndarray, height: int, width: int) -> np.ndarray:
-    """float32 (H, W) z-depth of the table top (z = 0, |x|, |y| <= TABLE_HALF_SIZE_M), 0 elsewhere."""
-    v, u = np.mgrid[0:height, 0:width].astype(np.float64)
-    rays = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)  # z = 1
-    R, t = T_world_camera[:3, :3], T_world_camera[:3, 3]
-    dz = rays @ R[2]  # world z change per unit of camera z
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = -t[2] / dz  # camera z-depth where the ray meets z = 0
-    hit = (dz < 0) & (s > 0)
-    xy = t[:2] + s[..., None] * (rays @ R[:2].T)
-    hit &= (np.abs(xy) <= TABLE_HALF_SIZE_M).all(-1)
-    return np.where(hit, s, 0.0).astype(np.float32)
-
-
-def splat(
-    points: np.ndarray,
-    grey: np.ndarray,
-    K: np.ndarray,
-    T_world_camera: np.ndarray,
-    height: int,
-    width: int,
-    spacing_m: float,
-    cfg: CanonicalConfig = CanonicalConfig(),
-) -> tuple[np.ndarray, np.ndarray]:
-    """z-buffered disc splats: (depth float32 (H, W), 0 = none; grey float32 (H, W))."""
-    T_cw = np.linalg.inv(T_world_camera)
-    pc = points @ T_cw[:3, :3].T + T_cw[:3, 3]
-    front = pc[:, 2] > 0.02
-    pc, g = pc[front], grey[front]
-    z = pc[:, 2]
-    u = K[0, 0] * pc[:, 0] / z + K[0, 2]
-    v = K[1, 1] * pc[:, 1] / z + K[1, 2]
-    # a disc whose world radius is a fraction of the spacing, seen at depth z; at least the own pixel
-    r_px = np.maximum(cfg.splat_radius_rel * spacing_m * K[0, 0] / z, 0.5)
-    R = int(min(cfg.max_splat_px, math.ceil(r_px.max()))) if len(z) else 0
-    ui, vi = np.rint(u).astype(np.int64), np.rint(v).astype(np.int64)
-    idx, zs, gs = [], [], []
-    for dy in range(-R, R + 1):
-        for dx in range(-R, R + 1):
-            sel = (dx * dx + dy * dy <= r_px * r_px) | ((dx == 0) & (dy == 0))
-            x, y = ui[sel] + dx, vi[sel] + dy
-            ok = (x >= 0) & (x < width) & (y >= 0) & (y < height)
-            idx.append((y * width + x)[ok])
-            zs.append(z[sel][ok])
-            gs.append(g[sel][ok])
-    idx, zs, gs = np.concatenate(idx), np.concatenate(zs), np.concatenate(gs)
-    zbuf = np.full(height * width, np.inf)
-    np.minimum.at(zbuf, idx, zs)
-    # grey: mean over the samples on the visible surface (within a splat's depth of the nearest)
-    front = zs <= zbuf[idx] + max(2.0 * spacing_m, 0.004)
-    n = np.bincount(idx[front], minlength=height * width)
-    gsum = np.bincount(idx[front], weights=gs[front], minlength=height * width)
-    depth = np.where(np.isfinite(zbuf), zbuf, 0.0).reshape(height, width)
-    gimg = np.where(n > 0, gsum / np.maximum(n, 1), 0.0).reshape(height, width)
-    depth, gimg = _fill_small_holes(depth, gimg, cfg.fill_min_neighbours)
-    return depth.astype(np.float32), gimg.astype(np.float32)
-
-
-def _fill_small_holes(depth: np.ndarray, grey: np.ndarray, min_neighbours: int) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels without a reading but with >= min_neighbours of their 8 neighbours read get their mean
-    (gaps between splats, not the outline: an outline pixel has at most 5 neighbours inside)."""
-    import cv2
-
-    valid = (depth > 0).astype(np.float64)
-    k = np.ones((3, 3))
-    cnt = cv2.filter2D(valid, -1, k, borderType=cv2.BORDER_CONSTANT)
-    dsum = cv2.filter2D(depth * valid, -1, k, borderType=cv2.BORDER_CONSTANT)
-    gsum = cv2.filter2D(grey * valid, -1, k, borderType=cv2.BORDER_CONSTANT)
-    fill = (valid == 0) & (cnt >= min_neighbours)
-    depth, grey = depth.copy(), grey.copy()
-    depth[fill] = dsum[fill] / cnt[fill]
-    grey[fill] = gsum[fill] / cnt[fill]
-    return depth, grey
-
-
 def render_views(
     obj: ObjectFrame,
     K: np.ndarray,
@@ -372,7 +269,18 @@ def render_views(
     for k, yaw in enumerate(obj.yaws_rad):
         pts = obj.points @ rot_z(yaw)[:3, :3].T
         for i in range(V):
-            d, g = splat(pts, grey_pts, K[i], T_world_camera[i], height, width, spacing, cfg)
+            d, g = splat(
+                pts,
+                grey_pts,
+                K[i],
+                T_world_camera[i],
+                height,
+                width,
+                spacing,
+                radius_rel=cfg.splat_radius_rel,
+                max_px=cfg.max_splat_px,
+                fill_min_neighbours=cfg.fill_min_neighbours,
+            )
             table = tables[i]
             m = (d > 0) & ((table == 0) | (d < table + 0.002))  # the object stands on the table
             mask[k, i] = m
@@ -383,8 +291,8 @@ def render_views(
 
 # -- the entry point -------------------------------------------------------------------------
 def to_rig_views(
-    rec,
-    rig,
+    rec: Recording | str | Path,
+    rig: Rig | dict | str,
     frame: int | None = None,
     cfg: CanonicalConfig = CanonicalConfig(),
     workdir: str | Path | None = None,
@@ -396,10 +304,6 @@ def to_rig_views(
     simulation paths (default the middle one); a fused recording is one static object. workdir: where
     an unregistered real recording is registered (a temporary folder when None).
     """
-    import tempfile
-
-    from spare_twin.recording import Recording
-
     rec = rec if isinstance(rec, Recording) else Recording.open(rec)
     rig = resolve_rig(rig)
     H, W = rig.height, rig.width
@@ -407,14 +311,10 @@ def to_rig_views(
     poses = rig.poses()
     frame = rec.n_frames // 2 if frame is None else frame
     if not 0 <= frame < rec.n_frames:
-        raise SpareTwinError(f"--frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
+        raise SpareTwinError(f"frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
     if rec.rig == rig.name and len(rec.cameras) == rig.n_cameras:
         return _own_views(rec, rig, frame)
-    if (
-        rec.meta.get("registration")
-        or rec.source.get("kind") == "sim"
-        and all(c.poses != "unknown" for c in rec.cameras)
-    ):
+    if rec.registration is not None or rec.in_sim_world:
         obj = object_frame(rec, cfg, frame)
     else:
         with tempfile.TemporaryDirectory(dir=workdir) as tmp:
@@ -423,11 +323,9 @@ def to_rig_views(
     return CanonicalViews(depth, grey, mask, K, poses, obj.yaws_rad, obj.method, obj.T_world_object)
 
 
-def _own_views(rec, rig, frame: int) -> CanonicalViews:
+def _own_views(rec: Recording, rig: Rig, frame: int) -> CanonicalViews:
     """No-op path: the training rig's own cameras, resized to the network resolution."""
     import cv2
-
-    from spare_twin.capture.frames import fit_view
 
     H, W = rig.height, rig.width
     depth, grey, mask, Ks, Ts = [], [], [], [], []

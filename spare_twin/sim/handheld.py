@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
-from spare_twin.sim.rig import _axis_angle, look_at
+from spare_twin.sim.rig import axis_angle, look_at
 
 
 @dataclass(frozen=True)
@@ -83,9 +83,9 @@ def handheld_poses(cfg: HandheldPath, n_frames: int, seed: int) -> np.ndarray:
             [radius[t] * math.cos(az[t]), radius[t] * math.sin(az[t]), height[t]]
         )
         T = look_at(eye, aim[t])
-        R = T[:3, :3] @ _axis_angle(np.array([0.0, 0.0, 1.0]), roll[t])  # roll about the optical axis
+        R = T[:3, :3] @ axis_angle(np.array([0.0, 0.0, 1.0]), roll[t])  # roll about the optical axis
         axis = rng.normal(size=3)
-        R = _axis_angle(axis / np.linalg.norm(axis), math.radians(rng.normal(scale=cfg.jitter_deg))) @ R
+        R = axis_angle(axis / np.linalg.norm(axis), math.radians(rng.normal(scale=cfg.jitter_deg))) @ R
         T[:3, :3] = R
         T[:3, 3] = eye + rng.normal(scale=cfg.jitter_m, size=3)
         out[t] = T

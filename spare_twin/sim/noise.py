@@ -23,19 +23,25 @@ Fit (`fit_depth_noise`): on real depth frames, along image rows,
   and edge_band_px the mean gap of those;
 - dropout_prob: isolated invalid pixels between two valid, smoothly continuing neighbours, per
   such configuration.
-`python -m spare_twin.sim.noise` refits the shipped parameters (capture/rigs/noise_*.json).
+`fit_noise_models` (`spare-twin noise fit`) fits and writes them (capture/rigs/noise_*.json).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
+from spare_twin.io import read_json, read_png, write_bytes_atomic
+from spare_twin.output import OutputKind, check_output, writing
+from spare_twin.sim.rig import RIGS_DIR
+
+NOISE_FILE_PREFIX = "noise_"
 
 
 @dataclass(frozen=True)
@@ -91,9 +97,9 @@ class DepthNoise:
 
     @classmethod
     def from_json_file(cls, path: str | Path) -> DepthNoise:
-        from spare_twin.io import read_json
-
         d = read_json(path)
+        if not isinstance(d, dict):
+            raise SpareTwinError(f"{path}: expected a JSON object")
         d.pop("fit", None)
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - known)
@@ -102,16 +108,17 @@ class DepthNoise:
         return cls(**d)
 
 
-def load_noise(name: str, flag: str = "noise model") -> DepthNoise | None:
-    """The DepthNoise of capture/rigs/noise_<name>.json (or a JSON path); None for 'none'."""
-    from spare_twin.sim.rig import RIGS_DIR
+def load_noise(name: str, param: str = "noise", flag: str | None = None) -> DepthNoise | None:
+    """The DepthNoise of capture/rigs/noise_<name>.json (or a JSON path); None for 'none'.
 
+    Errors start with `param`, the caller's name for `name` (`flag` is its older spelling)."""
+    param = flag or param
     if name == "none":
         return None
-    p = Path(name) if name.endswith(".json") else RIGS_DIR / f"noise_{name}.json"
+    p = Path(name) if name.endswith(".json") else RIGS_DIR / f"{NOISE_FILE_PREFIX}{name}.json"
     if not p.is_file():
-        have = sorted(q.stem[len("noise_") :] for q in RIGS_DIR.glob("noise_*.json"))
-        raise SpareTwinError(f"{flag} {name!r}: no such noise model ({p}; have: {', '.join(have) or 'none'})")
+        have = sorted(q.stem[len(NOISE_FILE_PREFIX) :] for q in RIGS_DIR.glob(f"{NOISE_FILE_PREFIX}*.json"))
+        raise SpareTwinError(f"{param} {name!r}: no such noise model ({p}; have: {', '.join(have) or 'none'})")
     return DepthNoise.from_json_file(p)
 
 
@@ -203,10 +210,11 @@ def fit_depth_noise(
 
 
 def load_real_depths(folder: str | Path) -> tuple[list[np.ndarray], float, str]:
-    """Depth frames (metres) of the two shared real samples' layouts: 7-Scenes (mm) or TUM (/5000)."""
-    from spare_twin.io import read_png
-
+    """Depth frames (metres), depth unit and sensor of a real sample: 7-Scenes (mm, a RealSense SR300)
+    or TUM (1/5000 m, a Kinect v1)."""
     folder = Path(folder)
+    if not folder.is_dir():
+        raise SpareTwinError(f"{folder}: no such folder")
     seven = sorted(folder.glob("frame-*.depth.png"))
     if seven:
         return [read_png(p).astype(np.float32) * 0.001 for p in seven], 0.001, "realsense_sr300"
@@ -216,23 +224,55 @@ def load_real_depths(folder: str | Path) -> tuple[list[np.ndarray], float, str]:
     raise SpareTwinError(f"{folder}: no 7-Scenes (frame-*.depth.png) or TUM (*_depth.png, depth/*.png) frames")
 
 
-def main(argv=None) -> int:
-    """Refit the shipped noise models: python -m spare_twin.sim.noise [REAL_RGBD_DIR] [OUT_DIR]."""
-    import sys
+#: The real frames inside the repository (tests/data): the default source of `fit_noise_models`.
+#: The shipped models in capture/rigs/ were fitted to longer recordings of the same two sensors.
+SAMPLE_SOURCES = tuple(
+    Path(__file__).resolve().parents[2] / "tests" / "data" / name for name in ("apc_shelf_realsense", "tum_desk_pair")
+)
 
-    argv = sys.argv[1:] if argv is None else argv
-    src = Path(argv[0]) if argv else Path(__file__).resolve().parents[3] / "shared" / "real_rgbd"
-    out = Path(argv[1]) if len(argv) > 1 else Path(__file__).resolve().parents[2] / "capture" / "rigs"
-    for name in ("apc_shelf_realsense", "tum_desk_pair"):
-        depths, unit, sensor = load_real_depths(src / name)
+
+@dataclass(frozen=True)
+class NoiseFit:
+    """One noise model fitted by `fit_noise_models`, and the file it went to."""
+
+    path: Path
+    source: Path
+    model: DepthNoise
+    report: dict
+
+    def to_json(self) -> dict:
+        return {"path": str(self.path), "source": str(self.source), "model": self.model.to_dict()}
+
+
+#: What `fit_noise_models` writes: a folder of noise_<sensor>.json files (the output rule's kind).
+NOISE_FIT = OutputKind("noise fit")
+
+
+def fit_noise_models(
+    out_dir: str | Path, sources: Sequence[str | Path] = SAMPLE_SOURCES, force: bool = False
+) -> tuple[NoiseFit, ...]:
+    """Fit one noise model per source folder of real depth frames and write them into the folder
+    `out_dir` as noise_<sensor>.json (the files capture/rigs/ ships). `out_dir` follows the output
+    rule (`spare_twin.output`): absent, empty or an earlier noise fit, else only with `force`; it is
+    replaced once every fit has succeeded."""
+    if not sources:
+        raise SpareTwinError("sources: no folder of real depth frames given")
+    sources = [Path(s) for s in sources]
+    check_output(out_dir, NOISE_FIT, sources, force)  # refuse before the fitting, not after
+    fits: dict[str, tuple[Path, DepthNoise, dict]] = {}
+    for src in sources:
+        depths, unit, sensor = load_real_depths(src)
+        if sensor in fits:
+            raise SpareTwinError(f"{src}: a second {sensor} source (one noise model per sensor; {fits[sensor][0]})")
         model, report = fit_depth_noise(depths, unit, sensor)
-        d = model.to_dict()
-        d["fit"] = {"source": f"real_rgbd/{name}", **report}
-        path = out / f"noise_{sensor}.json"
-        path.write_text(json.dumps(d, indent=2) + "\n")
-        print(f"{path}: {json.dumps(model.to_dict())}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())
+        fits[sensor] = (src, model, report)
+    out = Path(out_dir)
+    written = []
+    with writing(out, NOISE_FIT, sources, force) as tmp:
+        for sensor, (src, model, report) in fits.items():
+            d = model.to_dict()
+            d["fit"] = {"source": f"{src.resolve().parent.name}/{src.resolve().name}", **report}
+            name = f"{NOISE_FILE_PREFIX}{sensor}.json"
+            write_bytes_atomic(tmp / name, (json.dumps(d, indent=2) + "\n").encode())
+            written.append(NoiseFit(out / name, src, model, report))
+    return tuple(written)

@@ -7,11 +7,14 @@ camera, random (or held) joint motion, optional depth-sensor noise, full ground 
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import sys
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import load_object
@@ -24,6 +27,10 @@ from spare_twin.sim.twin import Twin
 
 PATHS = ("rig", "handheld")
 MOTIONS = ("moving", "static")
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
 
 
 @dataclass(frozen=True)
@@ -52,11 +59,11 @@ class RenderConfig:
     """handheld only: keep the camera poses only as ground truth (poses 'unknown'), as a real sensor does."""
 
     def validate(self) -> None:
-        if not isinstance(self.frames, int) or self.frames < 1:
-            raise SpareTwinError(f"frames {self.frames!r}: must be at least 1")
-        if not self.fps > 0:
-            raise SpareTwinError(f"fps {self.fps!r}: must be positive")
-        if not isinstance(self.seed, int) or self.seed < 0:
+        if not _is_int(self.frames) or self.frames < 1:
+            raise SpareTwinError(f"frames {self.frames!r}: must be a whole number, at least 1")
+        if not (isinstance(self.fps, (int, float)) and math.isfinite(self.fps) and self.fps > 0):
+            raise SpareTwinError(f"fps {self.fps!r}: must be a positive number")
+        if not _is_int(self.seed) or self.seed < 0:
             raise SpareTwinError(f"seed {self.seed!r}: must be a non-negative integer")
         if self.path not in PATHS:
             raise SpareTwinError(f"path {self.path!r}: expected one of {', '.join(PATHS)}")
@@ -78,6 +85,9 @@ class RenderResult:
     n_links: int
     motion: str
 
+    def to_json(self) -> dict:
+        return {**dataclasses.asdict(self), "recording": str(self.recording)}
+
 
 def parse_resolution(text: str, rig: Rig) -> tuple[int, int]:
     """(width, height) from record | network | WxH."""
@@ -98,13 +108,11 @@ def render_recording(
     object_dir: str | Path, out: str | Path, cfg: RenderConfig = RenderConfig(), progress: bool = True
 ) -> RenderResult:
     """Load the object's URDF in pybullet, move its joints and record every camera into `out`."""
-    from tqdm import tqdm
-
     cfg.validate()
     obj = load_object(object_dir)
     rig = load_rig(cfg.rig)
     W, H = parse_resolution(cfg.resolution, rig)
-    noise = load_noise(cfg.noise, flag="noise")
+    noise = load_noise(cfg.noise, param="noise")
     K = rig.K(W, H)
     angles = random_motion(
         obj.joint_limits_rad,

@@ -95,9 +95,6 @@ class Rig:
         height = self.height if height is None else height
         return intrinsics(self.fov_y_deg, width, height)
 
-    def K_record(self) -> np.ndarray:
-        return self.K(self.record_width, self.record_height)
-
     # -- files -------------------------------------------------------------------------
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -132,7 +129,7 @@ def load_rig(name_or_path: str | Path | None = None) -> Rig:
     if not p.is_file():
         if str(name_or_path) == DEFAULT_RIG:
             return Rig()  # the shipped default, even when capture/ is not installed alongside
-        raise SpareTwinError(f"{name_or_path}: no such rig (looked for {p})")
+        raise SpareTwinError(f"rig {str(name_or_path)!r}: no such rig (looked for {p})")
     try:
         d = json.loads(p.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
@@ -167,7 +164,7 @@ def jitter_rig_poses(poses: np.ndarray, rng: np.random.Generator, rot_deg: float
         axis = rng.normal(size=3)
         axis /= np.linalg.norm(axis)
         angle = math.radians(rng.normal(scale=rot_deg))
-        out[i, :3, :3] = _axis_angle(axis, angle) @ poses[i, :3, :3]
+        out[i, :3, :3] = axis_angle(axis, angle) @ poses[i, :3, :3]
         out[i, :3, 3] = poses[i, :3, 3] + rng.normal(scale=trans_m, size=3)
     return out
 
@@ -182,6 +179,7 @@ def jitter_intrinsics(K: np.ndarray, rng: np.random.Generator, focal_rel: float,
     return out
 
 
-def _axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+def axis_angle(axis: np.ndarray, angle: float) -> np.ndarray:
+    """3x3 rotation by `angle` (rad) about the unit vector `axis` (Rodrigues)."""
     k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
     return np.eye(3) + math.sin(angle) * k + (1 - math.cos(angle)) * (k @ k)

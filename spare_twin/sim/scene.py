@@ -17,9 +17,7 @@ import numpy as np
 
 from spare_twin.config import COLORS, ChainSpec
 from spare_twin.sim.rig import Rig, jitter_intrinsics, jitter_rig_poses
-from spare_twin.sim.twin import Lighting
-
-DEFAULT_TABLE_RGBA = (0.55, 0.5, 0.45, 1.0)
+from spare_twin.sim.twin import DEFAULT_TABLE_RGBA, Lighting
 
 
 @dataclass(frozen=True)

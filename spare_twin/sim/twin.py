@@ -13,6 +13,8 @@ buffer, which gives the eye-space z, i.e. z-depth (not the ray length), as recor
 
 from __future__ import annotations
 
+import os
+import sys
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +23,7 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import ObjectFolder
 
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])  # flip y (down -> up) and z (forward -> backward)
+DEFAULT_TABLE_RGBA = (0.55, 0.5, 0.45, 1.0)
 
 
 @dataclass(frozen=True)
@@ -85,12 +88,8 @@ class Frame:
 
 def import_pybullet():
     """Import pybullet without the build-time banner it prints on stderr (noise between progress bars)."""
-    import sys
-
     if "pybullet" in sys.modules:
         return sys.modules["pybullet"]
-    import os
-
     sys.stderr.flush()
     saved = os.dup(2)
     try:
@@ -106,7 +105,7 @@ def import_pybullet():
 class Twin:
     """One pybullet DIRECT client holding a table, optional clutter and (at most) one object."""
 
-    def __init__(self, table: bool = True, table_rgba=(0.55, 0.5, 0.45, 1.0)):
+    def __init__(self, table: bool = True, table_rgba=DEFAULT_TABLE_RGBA):
         p = import_pybullet()
         self.p = p
         self.cid = p.connect(p.DIRECT)

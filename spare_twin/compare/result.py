@@ -1,0 +1,182 @@
+"""What `compare` finds for one printed object, as types: the printed truth, each prediction's score
+against it (`score`) and the whole comparison (`Comparison`, the `compare --json` object), with the
+summary lines the commands and the demo print."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin.compare.articulated import ArticulatedFit
+from spare_twin.config import LABEL_SLOTS
+from spare_twin.nets.metrics import length_errors
+from spare_twin.nets.predict import Prediction
+
+#: What each side of a comparison keeps of its prediction (JSON keys)...
+SIDE_KEYS = ("n_links", "link_lengths_m", "probabilities", "joint_angles_rad")
+#: ... and the side that `predict` frames by itself, also how it did.
+ESTIMATED_FRAME_KEYS = (*SIDE_KEYS, "input", "yaw_deg")
+#: The summary's rows: side -> label.
+SUMMARY_SIDES = {"truth": "truth", "sim": "sim", "real": "real", "real_estimated_frame": "real, predict's own frame"}
+
+
+@dataclass(frozen=True)
+class Score:
+    """One prediction against the truth (paper units)."""
+
+    count_correct: bool
+    E_L: float | None
+    """The paper's end-to-end E_L (7 slots, zeros past each count); None without predicted lengths."""
+    per_link_pu: tuple[float, ...] | None
+    """Predicted minus true length per slot, up to the longer chain (JSON `per_link_m`)."""
+
+    def to_json(self) -> dict:
+        return {
+            "count_correct": self.count_correct,
+            "E_L": self.E_L,
+            "per_link_m": None if self.per_link_pu is None else list(self.per_link_pu),
+        }
+
+
+def padded(lengths_pu) -> np.ndarray:
+    """Lengths in the label's LABEL_SLOTS slots, zeros past the last link."""
+    out = np.zeros(LABEL_SLOTS)
+    if lengths_pu:
+        out[: len(lengths_pu)] = lengths_pu
+    return out
+
+
+def score(n_true: int, lengths_true_pu, n_pred: int | None, lengths_pred_pu) -> Score:
+    """Count right or wrong, E_L with the paper's end-to-end rule, and per-link errors (paper units)."""
+    if lengths_pred_pu is None or n_pred is None:
+        return Score(n_pred == n_true, None, None)
+    t, p = padded(lengths_true_pu), padded(lengths_pred_pu)
+    e_l = float(length_errors(t[None], p[None], [n_true], [n_pred])[0])
+    return Score(bool(n_pred == n_true), e_l, tuple(float(x) for x in (p - t)[: max(n_true, n_pred) + 1]))
+
+
+@dataclass(frozen=True)
+class Truth:
+    """The configuration that was printed, and the pose it was recorded in where known."""
+
+    n_links: int
+    link_lengths_pu: tuple[float, ...]
+    joint_angles_rad: tuple[float, ...] | None = None
+
+    def score(self, prediction: Prediction) -> Score:
+        return score(self.n_links, self.link_lengths_pu, prediction.n_links, prediction.link_lengths_pu)
+
+    def to_json(self) -> dict:
+        return {
+            "n_links": self.n_links,
+            "link_lengths_m": list(self.link_lengths_pu),
+            "joint_angles_rad": None if self.joint_angles_rad is None else list(self.joint_angles_rad),
+        }
+
+
+def summary_row(name: str, n_links: int | None, lengths_pu, scored: Score | None = None) -> str:
+    """One line of a sim-vs-real summary: count, lengths (paper units) and, when scored, right/WRONG and E_L."""
+    lengths = ", ".join(f"{x:.3f}" for x in (lengths_pu or []))
+    tail = ""
+    if scored is not None and scored.E_L is not None:
+        tail = f"  count {'right' if scored.count_correct else 'WRONG'}, E_L {scored.E_L:.4f}"
+    return f"  {name:<26s} n = {n_links}  lengths [{lengths}]{tail}"
+
+
+def _keep(prediction: Prediction, keys: tuple[str, ...]) -> dict:
+    out = prediction.to_json()
+    return {k: out.get(k) for k in keys}
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Sim vs real for one printed object (`compare`).
+
+    `real` is the network on the real recording with its views placed by the twin's fitted base pose
+    (the frame the sim twin stands in); `real_estimated_frame` is what `predict` alone makes of it.
+    """
+
+    truth: Truth
+    sim: Prediction
+    real: Prediction
+    real_estimated_frame: Prediction
+    fit: ArticulatedFit
+    """The URDF twin fitted to the real cloud, in the real recording's object frame."""
+    T_world_object: np.ndarray
+    """4x4 object frame (z up, table z = 0) in the real recording's world."""
+    sim_recording: Path
+    settings: dict
+    """`CompareConfig.settings()`: what a batch checks before reusing the comparison."""
+    rrd: str | None = None
+
+    @property
+    def T_world_base(self) -> np.ndarray:
+        """4x4 pose of the fitted twin's base in the real recording's world."""
+        return self.T_world_object @ self.fit.T_object_base
+
+    @property
+    def model(self) -> str:
+        return self.real.model
+
+    def errors(self, side: str) -> Score:
+        """The score of side "sim", "real" or "real_estimated_frame"."""
+        return self.truth.score(getattr(self, side))
+
+    @property
+    def joint_angle_errors_deg(self) -> tuple[float, ...] | None:
+        """|fitted - recorded| joint angles (wrapped), None when the recording has no ground truth."""
+        if self.truth.joint_angles_rad is None:
+            return None
+        diff = np.asarray(self.fit.joint_angles_rad) - np.asarray(self.truth.joint_angles_rad)
+        return tuple(float(np.degrees(abs((d + np.pi) % (2 * np.pi) - np.pi))) for d in diff)
+
+    def summary_rows(self, names: dict[str, str] = SUMMARY_SIDES) -> list[str]:
+        """One `summary_row` per side named in `names` (side -> label), scored against the truth."""
+        rows = []
+        for side, name in names.items():
+            if side == "truth":
+                rows.append(summary_row(name, self.truth.n_links, self.truth.link_lengths_pu))
+            else:
+                p = getattr(self, side)
+                rows.append(summary_row(name, p.n_links, p.link_lengths_pu, self.errors(side)))
+        return rows
+
+    def summary(self) -> str:
+        """The `compare` report: truth and every side, then the fitted joint angles' errors."""
+        lines = self.summary_rows()
+        angles = self.joint_angle_errors_deg
+        if angles is not None:
+            lines.append("  joint angles from registration: error " + ", ".join(f"{a:.1f}" for a in angles) + " deg")
+        return "\n".join(lines)
+
+    def to_json(self) -> dict:
+        fit = self.fit
+        angles = self.joint_angle_errors_deg
+        out = {
+            "truth": self.truth.to_json(),
+            "sim": _keep(self.sim, SIDE_KEYS),
+            "real": _keep(self.real, SIDE_KEYS),
+            "real_estimated_frame": _keep(self.real_estimated_frame, ESTIMATED_FRAME_KEYS),
+            "registration": {
+                "joint_angles_rad": [float(a) for a in fit.joint_angles_rad],
+                "T_world_base": self.T_world_base.tolist(),
+                "rmse_m": fit.rmse_m,
+                "inlier_fraction": fit.inlier_fraction,
+                "depth_error_m": fit.depth_error_m,
+                "camera_corrections_mm_deg": [list(c) for c in fit.view_corrections],
+            },
+            "errors": {
+                "sim": self.errors("sim").to_json(),
+                "real": self.errors("real").to_json(),
+                "real_estimated_frame": self.errors("real_estimated_frame").to_json(),
+                "joint_angles_deg": None if angles is None else list(angles),
+            },
+            "sim_recording": str(self.sim_recording),
+            "model": self.model,
+            "settings": self.settings,
+        }
+        if self.rrd is not None:
+            out["rrd"] = self.rrd
+        return out

@@ -1,0 +1,73 @@
+"""The layering and the style rules hold: import-linter's contracts, ruff (lint and format), no
+function-local imports of the project's own modules in the library, and nobody reaches into a
+recording's private parts."""
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+from conftest import REPO
+
+BIN = Path(sys.executable).parent
+LIBRARY = REPO / "spare_twin"
+#: Where the lazy import of library modules is the point: `spare-twin --help` must stay instant.
+COMMAND_LAYER = (LIBRARY / "cli.py", LIBRARY / "commands", LIBRARY / "__main__.py")
+
+
+def _run(*argv):
+    return subprocess.run([str(BIN / argv[0]), *argv[1:]], cwd=REPO, capture_output=True, text=True)
+
+
+def test_import_linter_contracts_are_kept():
+    res = _run("lint-imports")
+    assert res.returncode == 0, res.stdout[-4000:] + res.stderr[-2000:]
+    assert "0 broken" in res.stdout
+
+
+def test_ruff_lint_and_format_are_clean():
+    lint = _run("ruff", "check", "spare_twin", "tests")
+    assert lint.returncode == 0, lint.stdout[-4000:]
+    fmt = _run("ruff", "format", "--check", "spare_twin", "tests")
+    assert fmt.returncode == 0, fmt.stdout[-4000:]
+
+
+def _library_files():
+    for path in sorted(LIBRARY.rglob("*.py")):
+        if not any(path == p or p in path.parents for p in COMMAND_LAYER):
+            yield path
+
+
+def test_library_imports_its_own_modules_at_the_top():
+    local = []
+    for path in _library_files():
+        tree = ast.parse(path.read_text(), str(path))
+        for fn in ast.walk(tree):
+            if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(fn):
+                if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("spare_twin"):
+                    local.append(f"{path.relative_to(REPO)}:{node.lineno} {node.module}")
+                elif isinstance(node, ast.Import) and any(a.name.startswith("spare_twin") for a in node.names):
+                    local.append(f"{path.relative_to(REPO)}:{node.lineno}")
+    assert not local, "function-local imports of project modules:\n" + "\n".join(local)
+
+
+def test_nobody_reaches_into_a_recordings_private_parts():
+    recording = {LIBRARY / "recording.py", *(LIBRARY / "recording").glob("*.py")}
+    private = {"_poses", "_checked", "_w", "_ctx", "_finish", "_write_png"}
+    offenders = []
+    for path in [*LIBRARY.rglob("*.py"), *(REPO / "tests").glob("*.py")]:
+        if path in recording:
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Attribute) and node.attr in private:
+                offenders.append(f"{path.relative_to(REPO)}:{node.lineno} .{node.attr}")
+    assert not offenders, "\n".join(offenders)
+
+
+def test_the_library_never_drives_the_command_line():
+    for path in _library_files():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.ImportFrom):
+                assert not (node.module or "").startswith(("spare_twin.cli", "spare_twin.commands")), path
