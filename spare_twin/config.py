@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
+from spare_twin.io import read_json
 
 MIN_MOVING_LINKS = 1
 MAX_MOVING_LINKS = 6
@@ -49,7 +50,51 @@ def _is_seed(seed) -> bool:
 
 
 def _fail(field_name: str, problem: str) -> None:
-    raise SpareTwinError(f"invalid chain configuration: {field_name}: {problem}")
+    # the message starts with the parameter's name, so a command can say it as its flag (commands.common.flags)
+    raise SpareTwinError(f"{field_name}: {problem}")
+
+
+def _shown(value) -> str:
+    """A value as a one-line message shows it (JSON spelling, cut short)."""
+    try:
+        text = json.dumps(value, ensure_ascii=True)
+    except (TypeError, ValueError):
+        text = repr(value).encode("unicode_escape").decode()
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _is_number(v) -> bool:
+    if not isinstance(v, numbers.Real) or isinstance(v, bool):
+        return False
+    try:  # a JSON integer too large for a float is not a usable number either
+        float(v)
+    except OverflowError:
+        return False
+    return True
+
+
+def _type_problems(d: dict) -> list[str]:
+    """Every field of a configuration (keys as in object.json) whose value has the wrong type: float()
+    and len() on hand-written JSON would otherwise fail with a Python error naming no key."""
+    problems = []
+    n = d.get("n_links")
+    if "n_links" in d and not (isinstance(n, numbers.Integral) and not isinstance(n, bool)):
+        problems.append(f"n_links: must be a whole number, got {_shown(n)}")
+    for key, ok, what in (
+        ("link_lengths_m", _is_number, "numbers"),
+        ("colors", lambda c: isinstance(c, str), "colour names"),
+    ):
+        v = d.get(key)
+        if key in d and not (isinstance(v, (list, tuple)) and all(ok(x) for x in v)):
+            problems.append(f"{key}: must be a list of {what}, got {_shown(v)}")
+    if "print_scale" in d and not _is_number(d["print_scale"]):
+        problems.append(f"print_scale: must be a number, got {_shown(d['print_scale'])}")
+    if "name" in d and not isinstance(d["name"], str):
+        problems.append(f"name: must be a string, got {_shown(d['name'])}")
+    seed = d.get("seed")
+    if seed is not None and not (isinstance(seed, numbers.Integral) and not isinstance(seed, bool)):
+        problems.append(f"seed: must be a whole number or null, got {_shown(seed)}")
+    return problems
 
 
 @dataclass(frozen=True)
@@ -130,9 +175,22 @@ class ChainSpec:
     printer: PrinterSpec = field(default_factory=PrinterSpec)
 
     def __post_init__(self) -> None:
+        fields = {"link_lengths_m" if f.name == "link_lengths_pu" else f.name: getattr(self, f.name)
+                  for f in dataclasses.fields(self)}  # fmt: skip
+        problems = _type_problems(fields)
+        for key, cls in (("parts", PartDims), ("printer", PrinterSpec)):
+            if not isinstance(fields[key], cls):
+                problems.append(f"{key}: must be a {cls.__name__}, got {_shown(fields[key])}")
+                continue
+            problems += [f"{key}.{f.name}: must be a number, got {_shown(getattr(fields[key], f.name))}"
+                         for f in dataclasses.fields(cls) if not _is_number(getattr(fields[key], f.name))]  # fmt: skip
+        if problems:
+            raise SpareTwinError("; ".join(problems))
         # Coerce sequences so a spec built from JSON lists equals one built from tuples.
         object.__setattr__(self, "link_lengths_pu", tuple(float(x) for x in self.link_lengths_pu))
-        object.__setattr__(self, "colors", tuple(str(c) for c in self.colors))
+        object.__setattr__(self, "colors", tuple(self.colors))
+        object.__setattr__(self, "print_scale", float(self.print_scale))
+        object.__setattr__(self, "n_links", int(self.n_links))
         validate(self)
 
     # -- derived quantities -------------------------------------------------------------
@@ -160,25 +218,26 @@ class ChainSpec:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "configuration") -> ChainSpec:
+        """The spec a configuration describes; else one SpareTwinError naming `source` and every key at fault."""
         if not isinstance(d, dict):
             raise SpareTwinError(f"{source}: expected a JSON object")
         known = {f.name for f in dataclasses.fields(cls)} - {"link_lengths_pu"} | {"link_lengths_m"}
-        unknown = sorted(set(d) - known - {"format", "derived"})
+        problems = []
+        unknown = sorted(_key(k) for k in set(d) - known - {"format", "derived"})
         if unknown:
-            raise SpareTwinError(f"{source}: unknown key(s) {', '.join(unknown)}")
-        missing = [k for k in ("n_links", "link_lengths_m", "colors") if k not in d]
-        if missing:
-            raise SpareTwinError(f"{source}: missing key(s) {', '.join(missing)}")
+            problems.append(f"unknown key(s) {', '.join(unknown)}")
+        problems += [f"{k}: missing" for k in ("n_links", "link_lengths_m", "colors") if k not in d]
+        problems += _type_problems(d)
         kwargs = {("link_lengths_pu" if k == "link_lengths_m" else k): v for k, v in d.items() if k in known}
+        for key, sub in (("parts", PartDims), ("printer", PrinterSpec)):
+            if key in kwargs:
+                kwargs[key], found = _sub(sub, kwargs[key], key)
+                problems += found
+        if problems:
+            raise SpareTwinError(f"{source}: {'; '.join(problems)}")
         try:
-            if "parts" in kwargs:
-                kwargs["parts"] = _sub(PartDims, kwargs["parts"], f"{source}: parts")
-            if "printer" in kwargs:
-                kwargs["printer"] = _sub(PrinterSpec, kwargs["printer"], f"{source}: printer")
             return cls(**kwargs)
         except SpareTwinError as exc:
-            raise SpareTwinError(f"{source}: {exc}") from None
-        except TypeError as exc:  # wrong value types from hand-written JSON
             raise SpareTwinError(f"{source}: {exc}") from None
 
     def to_json(self) -> str:
@@ -187,111 +246,123 @@ class ChainSpec:
 
     @classmethod
     def from_json_file(cls, path: str | Path) -> ChainSpec:
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise SpareTwinError(f"{path}: no such file") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise SpareTwinError(f"{path}: not valid JSON ({exc})") from None
-        return cls.from_dict(d, source=str(path))
+        return cls.from_dict(read_json(path), source=str(path))
 
 
-def _sub(cls, value, source):
+def _key(k) -> str:
+    return k if isinstance(k, str) and k.isidentifier() else _shown(k)
+
+
+def _sub(cls, value, key: str):
+    """(the `cls` that the JSON object `value` describes, or None; the problems found, each naming key.field)."""
     if not isinstance(value, dict):
-        raise SpareTwinError(f"{source}: expected a JSON object")
+        return None, [f"{key}: must be a JSON object, got {_shown(value)}"]
     known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(value) - known)
-    if unknown:
-        raise SpareTwinError(f"{source}: unknown key(s) {', '.join(unknown)}")
-    for k, v in value.items():
-        if not isinstance(v, (int, float)) or isinstance(v, bool):
-            raise SpareTwinError(f"{source}: {k} must be a number")
-    return cls(**{k: float(v) for k, v in value.items()})
+    problems = [f"{key}: unknown key(s) {', '.join(sorted(_key(k) for k in set(value) - known))}"]
+    problems = problems if set(value) - known else []
+    problems += [f"{key}.{k}: must be a number, got {_shown(v)}" for k, v in value.items()
+                 if k in known and not _is_number(v)]  # fmt: skip
+    if problems:
+        return None, problems
+    return cls(**{k: float(v) for k, v in value.items()}), []
 
 
 def validate(spec: ChainSpec) -> None:
-    """Reject configurations that cannot be built or printed, naming the offending field."""
+    """Reject configurations that cannot be built or printed: one message naming every field at fault."""
+    problems = _value_problems(spec)
+    if problems:
+        raise SpareTwinError("; ".join(problems))
+
+
+def _value_problems(spec: ChainSpec) -> list[str]:
+    out: list[str] = []
+
+    def bad(field_name: str, problem: str) -> None:  # each starts with the field, so flags() can map the first
+        out.append(f"{field_name}: {problem}")
+
     n = spec.n_links
-    if not isinstance(n, int) or isinstance(n, bool):
-        _fail("n_links", f"must be an integer, got {n!r}")
     if not MIN_MOVING_LINKS <= n <= MAX_MOVING_LINKS:
-        _fail("n_links", f"{n} is out of range {MIN_MOVING_LINKS}..{MAX_MOVING_LINKS}")
-    if len(spec.link_lengths_pu) != n + 1:
-        _fail("link_lengths_m", f"needs n_links + 1 = {n + 1} values (base first), got {len(spec.link_lengths_pu)}")
+        bad("n_links", f"{n} is out of range {MIN_MOVING_LINKS}..{MAX_MOVING_LINKS}")
+    elif len(spec.link_lengths_pu) != n + 1:
+        bad("link_lengths_m", f"needs n_links + 1 = {n + 1} values (base first), got {len(spec.link_lengths_pu)}")
     for i, length in enumerate(spec.link_lengths_pu):
         if not math.isfinite(length) or length <= 0:
-            _fail("link_lengths_m", f"link {i} length {length} must be positive")
-    if len(spec.colors) != n + 1:
-        _fail("colors", f"needs n_links + 1 = {n + 1} colour names, got {len(spec.colors)}")
-    for c in spec.colors:
-        if c not in COLORS:
-            _fail("colors", f"unknown colour {c!r} (choose from {', '.join(COLORS)})")
-    if not (isinstance(spec.print_scale, (int, float)) and math.isfinite(spec.print_scale) and spec.print_scale > 0):
-        _fail("print_scale", f"{spec.print_scale} must be a positive number")
+            bad("link_lengths_m", f"link {i} length {length} must be positive")
+            break
+    if MIN_MOVING_LINKS <= n <= MAX_MOVING_LINKS and len(spec.colors) != n + 1:
+        bad("colors", f"needs n_links + 1 = {n + 1} colour names, got {len(spec.colors)}")
+    unknown = [c for c in spec.colors if c not in COLORS]
+    if unknown:
+        bad("colors", f"unknown colour {unknown[0]!r} (choose from {', '.join(COLORS)})")
+    if not (math.isfinite(spec.print_scale) and spec.print_scale > 0):
+        bad("print_scale", f"{spec.print_scale} must be a positive number")
     if not spec.name or not all(ch.isalnum() or ch in "_-" for ch in spec.name):
-        _fail("name", f"{spec.name!r} must be non-empty letters, digits, '_' or '-'")
+        bad("name", f"{_shown(spec.name)} must be non-empty letters, digits, '_' or '-'")
     if spec.seed is not None and not _is_seed(spec.seed):
-        _fail("seed", f"{spec.seed!r} must be a non-negative integer or null")
-
+        bad("seed", f"{spec.seed!r} must be a non-negative integer or null")
     p, pr = spec.parts, spec.printer
     for f in dataclasses.fields(p):
         v = getattr(p, f.name)
         if not math.isfinite(v) or (v < 0 if f.name in ("press_fit_mm",) else v <= 0):
-            _fail(f"parts.{f.name}", f"{v} must be positive")
+            bad(f"parts.{f.name}", f"{v} must be positive")
+    for f in dataclasses.fields(pr):
+        v = getattr(pr, f.name)
+        if f.name != "infill" and not (math.isfinite(v) and v > 0):
+            bad(f"printer.{f.name}", f"{v} must be positive")
+    if not 0 <= pr.infill <= 1:
+        bad("printer.infill", f"{pr.infill} must be within 0..1")
+    if out:  # what follows measures the design, which needs every field above in range
+        return out
+
     if not pr.min_clearance_mm <= p.pin_clearance_mm <= pr.max_clearance_mm:
-        _fail(
+        bad(
             "parts.pin_clearance_mm",
             f"{p.pin_clearance_mm} mm cannot print as a turning joint "
             f"(needs {pr.min_clearance_mm}..{pr.max_clearance_mm} mm)",
         )
     if p.press_fit_mm >= p.pin_clearance_mm:
-        _fail("parts.press_fit_mm", "must be smaller than pin_clearance_mm, or the pin turns in the child too")
+        bad("parts.press_fit_mm", "must be smaller than pin_clearance_mm, or the pin turns in the child too")
     for key, thickness in design_walls_mm(p).items():
         if thickness < pr.min_wall_mm - 1e-9:
-            _fail("parts", f"{WALL_NAMES[key]} is {thickness:.2f} mm, below the {pr.min_wall_mm} mm minimum wall")
+            bad("parts", f"{WALL_NAMES[key]} is {thickness:.2f} mm, below the {pr.min_wall_mm} mm minimum wall")
     if (
         p.spacer_ring_diameter_mm > p.link_width_mm
         or p.spacer_ring_diameter_mm <= p.pin_diameter_mm + 2 * pr.min_wall_mm
     ):
-        _fail(
+        bad(
             "parts.spacer_ring_diameter_mm",
             "must lie between the pin (plus a minimum wall each side) and the link width",
         )
-    for f in dataclasses.fields(pr):
-        v = getattr(pr, f.name)
-        if f.name != "infill" and not (math.isfinite(v) and v > 0):
-            _fail(f"printer.{f.name}", f"{v} must be positive")
-    if not 0 <= pr.infill <= 1:
-        _fail("printer.infill", f"{pr.infill} must be within 0..1")
     lengths_mm = spec.link_lengths_mm
     # Between two axes of one link sit the counterbore of one pin and the spacer ring of the other.
     min_between_axes_mm = counterbore_diameter_mm(p) / 2 + p.spacer_ring_diameter_mm / 2 + pr.min_wall_mm
     for i, length_mm in enumerate(lengths_mm[1:-1], start=1):
         if length_mm < min_between_axes_mm:
-            _fail(
+            bad(
                 "link_lengths_m",
                 f"link {i} is {length_mm:.1f} mm between axes at this print_scale, "
                 f"below the {min_between_axes_mm:.1f} mm its joints need",
             )
+            break
     if lengths_mm[-1] < p.link_width_mm / 2:
-        _fail(
+        bad(
             "link_lengths_m",
             f"the last link ({lengths_mm[-1]:.1f} mm) is shorter than half the link width at this print_scale",
         )
     if lengths_mm[0] < p.foot_thickness_mm + p.socket_height_mm + p.link_width_mm:
-        _fail(
+        bad(
             "link_lengths_m",
             f"the base ({lengths_mm[0]:.1f} mm) is too short to stand in its foot socket at this print_scale",
         )
     # Longest printed part: a link plate lying flat (its length plus the rounded ends).
     longest_mm = max(lengths_mm[0], max(lengths_mm[1:]) + p.link_width_mm / 2) + p.link_width_mm / 2
     if longest_mm > max(pr.bed_x_mm, pr.bed_y_mm) or p.foot_size_mm > min(pr.bed_x_mm, pr.bed_y_mm):
-        _fail(
+        bad(
             "print_scale",
             f"{spec.print_scale} makes a {longest_mm:.0f} mm part that does not fit the "
             f"{pr.bed_x_mm:.0f} x {pr.bed_y_mm:.0f} mm bed",
         )
+    return out
 
 
 #: The thinnest walls of the design, by their print_report.json key, and how an error names them.

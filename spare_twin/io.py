@@ -45,8 +45,14 @@ def read_json(path: str | Path) -> dict:
         return json.loads(path.read_text())
     except FileNotFoundError:
         raise SpareTwinError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise SpareTwinError(f"{path}: is a folder, not a JSON file") from None
+    except OSError as exc:
+        raise SpareTwinError(f"{path}: cannot read ({exc.strerror})") from None
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise SpareTwinError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise SpareTwinError(f"{path}: not valid JSON (nested too deep)") from None
 
 
 @contextmanager

@@ -30,9 +30,7 @@ import json
 import os
 import re
 import shutil
-import signal
 import sys
-import threading
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -122,19 +120,19 @@ def check_output(
     final = Path(os.path.abspath(path))
     real = _real(final)
     cwd = _real(os.getcwd())
-    for item in inputs:
-        if item is None:
-            continue
-        inp = _real(item)
+    inputs = [(item, _real(item)) for item in inputs if item is not None]
+    for item, inp in inputs:
         if real == inp:
             raise OutputRefused(shown, f"is the input {item}; name a new path for the output")
+    # before "contains the input": `--out .` is refused for being the current folder, whatever it holds
+    if _within(cwd, real):  # swapping it would pull the folder from under the shell
+        where = "the current folder" if real == cwd else "a folder around the current one"
+        raise OutputRefused(shown, f"is {where}; name a new folder for the output")
+    for item, inp in inputs:
         if _within(real, inp):
             raise OutputRefused(shown, f"lies inside the input {item}; name a path outside it")
         if _within(inp, real):
             raise OutputRefused(shown, f"contains the input {item}; name a path that does not")
-    if _within(cwd, real):  # swapping it would pull the folder from under the shell
-        where = "the current folder" if real == cwd else "a folder around the current one"
-        raise OutputRefused(shown, f"is {where}; name a new folder for the output")
     ancestor = final.parent
     while not os.path.lexists(ancestor):
         ancestor = ancestor.parent
@@ -384,76 +382,3 @@ def _remove_empty(folders: list[Path]) -> None:
     for folder in reversed(folders):
         with contextlib.suppress(OSError):
             os.rmdir(folder)
-
-
-# -- signals and stdout ------------------------------------------------------------------------------
-
-
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
-
-
-@contextlib.contextmanager
-def signals_as_interrupts(signals: tuple[int, ...] = (signal.SIGTERM, signal.SIGHUP)) -> Iterator[None]:
-    """SIGTERM and SIGHUP raise KeyboardInterrupt in the main thread while the block runs, so the
-    clean-ups of `finally` and `writing` run as on Ctrl-C. A signal set to be ignored (nohup) stays
-    ignored; elsewhere than in the main thread this does nothing (Python delivers signals there only)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = {}
-    for s in signals:
-        if signal.getsignal(s) is not signal.SIG_IGN:
-            previous[s] = signal.signal(s, _interrupt)
-    try:
-        yield
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, signal.SIG_DFL if handler is None else handler)
-
-
-class JsonStdout:
-    """The one JSON object of a `--json` command, printed on the real stdout when the block ends."""
-
-    def __init__(self) -> None:
-        self.obj = None
-        self.emitted = False
-
-    def emit(self, obj) -> None:
-        if self.emitted:
-            raise RuntimeError("a --json command prints exactly one JSON object")
-        self.obj, self.emitted = obj, True
-
-
-def _flush_c_stdio() -> None:
-    # C's stdout buffer (printf into a pipe) would otherwise reach the real stdout after the block
-    with contextlib.suppress(AttributeError, OSError):
-        ctypes.CDLL(None).fflush(None)
-
-
-@contextlib.contextmanager
-def single_json_stdout(enabled: bool = True) -> Iterator[JsonStdout]:
-    """While the block runs, everything written to stdout (Python's `print`, C's printf, C++ streams)
-    goes to stderr; the object given to `emit` is then printed on the real stdout, alone on its line.
-
-    With `enabled` False nothing is redirected (a command without --json), and `emit` still prints.
-    """
-    out = JsonStdout()
-    saved = None
-    if enabled:
-        sys.stdout.flush()
-        _flush_c_stdio()
-        with contextlib.suppress(OSError):
-            saved = os.dup(1)
-            os.dup2(2, 1)
-    try:
-        with contextlib.redirect_stdout(sys.stderr) if enabled else contextlib.nullcontext():
-            yield out
-    finally:
-        if saved is not None:
-            sys.stderr.flush()
-            _flush_c_stdio()
-            os.dup2(saved, 1)
-            os.close(saved)
-    if out.emitted:
-        print(json.dumps(out.obj), flush=True)

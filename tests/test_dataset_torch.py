@@ -91,3 +91,19 @@ def test_pose_jitter_turns_all_views_about_the_table_normal(data):
     J = J[0].numpy()
     yaw = np.degrees(np.arctan2(J[1, 0], J[0, 0]))
     assert 0 < abs(yaw) <= 10.0 and np.allclose(J[2], [0, 0, 1, 0], atol=1e-6) and abs(J[0, 3]) < 0.02
+
+
+def test_on_the_fly_streams_are_disjoint_across_processes_and_workers():
+    from spare_twin.dataset.torch_data import stream_indices
+
+    S, N, W = 10, 2, 3  # sequences (rounded up to a multiple of N by OnTheFlyDataset), processes, workers
+    per_rank = []
+    for rank in range(N):
+        got = [k for w in range(W) for k in stream_indices(rank, N, w, W, S)]
+        per_rank.append(got)
+    flat = [k for got in per_rank for k in got]
+    assert sorted(flat) == list(range(S))  # every sequence once, by one worker of one process
+    assert len(per_rank[0]) == len(per_rank[1])  # the same number of steps on every rank
+    assert OnTheFlyDataset(sequences=9, rank=1, world_size=2).sequences == 10
+    with pytest.raises(Exception, match="rank"):
+        OnTheFlyDataset(rank=2, world_size=2)

@@ -64,8 +64,8 @@ def test_preview_shows_the_object(tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, message",
     [
-        (["--links", "0"], "n_links: 0 is out of range"),
-        (["--links", "7"], "n_links: 7 is out of range"),
+        (["--links", "0"], "--links: 0 is out of range"),
+        (["--links", "7"], "--links: 7 is out of range"),
         (["--links", "2", "--clearance", "0.02"], "cannot print"),
         (["--links", "2", "--print-scale", "0.25"], "does not fit"),
         (["--links", "2", "--bed", "80x80"], "does not fit"),

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import psutil
 import pytest
+from conftest import run_cli
 from ray.cluster_utils import Cluster
 
 from spare_twin.dataset.build import generate_dataset
@@ -112,3 +113,13 @@ def test_ray_resumes_after_a_killed_driver(cluster, reference, tmp_path):
     assert r["already_present"] == done and r["complete"]
     assert _hashes(out) == _hashes(reference)
     assert not list((out / "sequences").glob(".*tmp*")) and not (out / ".lock").exists()
+
+
+def test_ray_cli_errors_are_one_line_and_write_nothing(tmp_path, capsys):
+    out = tmp_path / "d"
+    code, _, err = run_cli(["dataset", "--out", str(out), "--instances", "1", "--ray-address", "127.0.0.1:1"], capsys)
+    assert code == 1 and "--backend ray" in err
+    argv = ["dataset", "--out", str(out), "--instances", "1", "--backend", "ray", "--ray-address", "127.0.0.1:1"]
+    code, _, err = run_cli(argv, capsys)
+    assert code == 1 and "--ray-address 127.0.0.1:1" in err and len(err.strip().splitlines()) == 1
+    assert not out.exists()

@@ -38,6 +38,9 @@ def bench_registration(
     src = Path(data_dir) / "apc_shelf_realsense"
     if not src.is_dir():
         raise SpareTwinError(f"data_dir {data_dir}: no apc_shelf_realsense/ folder in it")
+    for g in gaps:
+        if not isinstance(g, int) or isinstance(g, bool) or g < 1:
+            raise SpareTwinError(f"gaps {g}: each gap must be a whole number of frames, at least 1")
     cfg = cfg or RegistrationConfig()
     with tempfile.TemporaryDirectory(prefix="spare-twin-bench-", dir=work_dir) as tmp:
         t0 = time.perf_counter()

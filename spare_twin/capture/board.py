@@ -19,10 +19,16 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.checks import is_number, whole
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic
+from spare_twin.output import check_output, writing
 
 T_WORLD_BOARD = np.diag([1.0, -1.0, -1.0, 1.0])
+#: Print resolutions a board page may have (an A4 page at 1200 dpi is 14000 x 9900 pixels).
+MIN_DPI, MAX_DPI = 72, 1200
+#: The command whose output a board folder is (its output marker).
+BOARD = "capture board"
 MM_PER_INCH = 25.4
 A4_LANDSCAPE_MM = (297.0, 210.0)
 
@@ -42,12 +48,23 @@ class BoardSpec:
     def __post_init__(self):
         import cv2
 
-        if self.squares_x < 3 or self.squares_y < 3:
-            raise SpareTwinError("board: at least 3 x 3 squares")
-        if not 0 < self.marker_m < self.square_m:
-            raise SpareTwinError("board: marker_m must be positive and smaller than square_m")
+        for name in ("squares_x", "squares_y"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 3:
+                raise SpareTwinError(f"{name} {value!r}: a board needs at least 3 x 3 squares")
+        whole("dpi", self.dpi, MIN_DPI)
+        if self.dpi > MAX_DPI:  # an A4 page at more would need gigabytes
+            raise SpareTwinError(f"dpi {self.dpi}: must be at most {MAX_DPI}")
+        if not is_number(self.square_m) or self.square_m <= 0:
+            raise SpareTwinError(f"square_m: {_mm(self.square_m)} must be positive")
+        if not is_number(self.marker_m) or not 0 < self.marker_m < self.square_m:
+            raise SpareTwinError(
+                f"marker_m: {_mm(self.marker_m)} must be positive and smaller than a square ({_mm(self.square_m)})"
+            )
+        if not isinstance(self.dictionary, str) or not self.dictionary.startswith("DICT_"):
+            raise SpareTwinError(f"dictionary {self.dictionary!r}: unknown ArUco dictionary (e.g. DICT_5X5_100)")
         if not hasattr(cv2.aruco, self.dictionary):
-            raise SpareTwinError(f"board: unknown ArUco dictionary {self.dictionary!r}")
+            raise SpareTwinError(f"dictionary {self.dictionary!r}: unknown ArUco dictionary (e.g. DICT_5X5_100)")
         w_mm, h_mm = self.size_m[0] * 1000, self.size_m[1] * 1000
         if w_mm > A4_LANDSCAPE_MM[0] - 20 or h_mm > A4_LANDSCAPE_MM[1] - 25:
             raise SpareTwinError(f"board: {w_mm:.0f} x {h_mm:.0f} mm does not fit an A4 page with margins")
@@ -70,10 +87,14 @@ class BoardSpec:
     @classmethod
     def load(cls, path: str | Path) -> BoardSpec:
         d = read_json(path)
+        if not isinstance(d, dict):
+            raise SpareTwinError(f"{path}: bad board description (expected a JSON object)")
         try:
             return cls(**{k: d[k] for k in ("squares_x", "squares_y", "square_m", "marker_m", "dictionary") if k in d})
         except TypeError as exc:
             raise SpareTwinError(f"{path}: bad board description ({exc})") from None
+        except SpareTwinError as exc:
+            raise SpareTwinError(f"{path}: {exc}") from None
 
 
 def board_page(spec: BoardSpec) -> np.ndarray:
@@ -108,29 +129,38 @@ def board_page(spec: BoardSpec) -> np.ndarray:
     return page
 
 
-def write_board(spec: BoardSpec, out_dir: str | Path) -> dict[str, Path]:
-    """board.png and board.pdf (A4 landscape, true size at spec.dpi) and board.json; returns the paths."""
+def _mm(length_m) -> str:
+    return f"{length_m * 1000:g} mm" if is_number(length_m) else repr(length_m)
+
+
+def write_board(spec: BoardSpec, out_dir: str | Path, force: bool = False) -> dict[str, Path]:
+    """board.png and board.pdf (A4 landscape, true size at spec.dpi) and board.json; returns the paths.
+
+    `out_dir` follows the output rule (`spare_twin.output`); `force` replaces what it would refuse.
+    """
     import io
 
     from PIL import Image
 
     out_dir = Path(out_dir)
+    check_output(out_dir, BOARD, force=force)  # before the page is drawn
     page = Image.fromarray(board_page(spec))
-    paths = {}
+    files = {}
     for ext, kw in (("png", {"dpi": (spec.dpi, spec.dpi)}), ("pdf", {"resolution": float(spec.dpi)})):
         buf = io.BytesIO()
         page.save(buf, format=ext.upper(), **kw)
-        paths[ext] = out_dir / f"board.{ext}"
-        write_bytes_atomic(paths[ext], buf.getvalue())
+        files[ext] = buf.getvalue()
     desc = asdict(spec) | {
         "size_m": list(spec.size_m),
         "page": "A4 landscape",
         "frame": "origin top-left corner, x along rows, y down, z into the board; "
         "world = board on the table: T_world_board = diag(1, -1, -1)",
     }
-    paths["json"] = out_dir / "board.json"
-    write_bytes_atomic(paths["json"], (json.dumps(desc, indent=2) + "\n").encode())
-    return paths
+    files["json"] = (json.dumps(desc, indent=2) + "\n").encode()
+    with writing(out_dir, BOARD, force=force) as tmp:
+        for ext, data in files.items():
+            write_bytes_atomic(tmp / f"board.{ext}", data)
+    return {ext: out_dir / f"board.{ext}" for ext in files}
 
 
 @dataclass

@@ -13,16 +13,18 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin.io import atomic_dir, encode_png, write_bytes_atomic
+from spare_twin.io import encode_png, write_bytes_atomic
+from spare_twin.output import writing
 from spare_twin.recording import Recording, depth_to_uint16
 
 
-def export_7scenes(rec_dir, out_dir, camera: str | None = None, poses: bool = True) -> Path:
+def export_7scenes(rec_dir, out_dir, camera: str | None = None, poses: bool = True, force: bool = False) -> Path:
+    """`out_dir` follows the output rule (`spare_twin.output`); `force` replaces what it would refuse."""
     import cv2
 
     rec = Recording.open(rec_dir)
     cam = rec.camera(camera or rec.cameras[0].name)
-    with atomic_dir(out_dir) as tmp:
+    with writing(out_dir, "capture export", inputs=[rec_dir], force=force) as tmp:
         np.savetxt(tmp / "camera-intrinsics.txt", cam.K, fmt="%.9f")
         for f in range(rec.n_frames):
             stem = tmp / f"frame-{f:06d}"

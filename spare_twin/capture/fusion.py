@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spare_twin.capture.checks import is_number, positive, whole
 from spare_twin.errors import SpareTwinError
 
 
@@ -25,6 +26,13 @@ class FusionConfig:
     block_count: int = 20000
     """initial voxel-block capacity (8^3 voxels each, about 10 kB): 20000 blocks cover a table-top scene
     at 4 mm; open3d grows the grid when needed."""
+
+    def __post_init__(self):
+        for name in ("voxel_m", "sdf_trunc_m", "max_depth_m"):
+            positive(name, getattr(self, name))
+        if not is_number(self.min_weight) or self.min_weight < 0:
+            raise SpareTwinError(f"min_weight {self.min_weight}: must be a number of at least 0")
+        whole("block_count", self.block_count, 1)
 
 
 @dataclass

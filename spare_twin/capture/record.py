@@ -15,9 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.checks import positive, whole
 from spare_twin.capture.frames import K_from, check_depth
 from spare_twin.errors import SpareTwinError
+from spare_twin.output import check_output
 from spare_twin.recording import Camera, Recording, RecordingWriter
+
+RECORD = "capture record"
 
 
 @dataclass(frozen=True)
@@ -38,6 +42,14 @@ class RecordConfig:
     visual_preset: str = ""
     """RealSense visual preset name, e.g. RS2_L500_VISUAL_PRESET_SHORT_RANGE; empty: device default."""
 
+    def __post_init__(self):
+        for name in ("width", "height", "fps"):
+            whole(name, getattr(self, name), 1)
+        if self.max_frames is not None:
+            whole("max_frames", self.max_frames, 1)
+        if self.duration_s is not None:
+            positive("duration_s", self.duration_s)
+
 
 def _tensor_np(image) -> np.ndarray:
     """open3d t.geometry.Image (or Tensor) to numpy, on the CPU."""
@@ -46,14 +58,24 @@ def _tensor_np(image) -> np.ndarray:
 
 
 def stream_to_recording(
-    frames, md, out: str | Path, source: dict, opts, expected_frames: int | None, timestamp
+    frames,
+    md,
+    out: str | Path,
+    source: dict,
+    opts,
+    expected_frames: int | None,
+    timestamp,
+    kind: str = RECORD,
+    inputs: tuple = (),
+    force: bool = False,
 ) -> Recording:
     """Write open3d t.geometry.RGBDImage frames from `frames` (an iterator) into a recording.
 
     `md` is open3d's RGBDVideoMetadata (intrinsics, depth scale, fps). Stops at the end of the
     iterator, after `opts.max_frames`, or on Ctrl-C (then keeps what was received). `opts` has
     `max_frames`, `stride` and `progress` (an `ImportOptions`, or any object with them); `timestamp()`
-    gives the current frame's time in seconds.
+    gives the current frame's time in seconds. `kind`, `inputs` and `force` are the output rule's
+    (`RecordingWriter`).
     """
     from tqdm import tqdm
 
@@ -64,7 +86,17 @@ def stream_to_recording(
     limit = getattr(opts, "max_frames", None)
     stride = max(1, getattr(opts, "stride", 1))
     stopped = False
-    with RecordingWriter(out, [camera], None, float(md.fps) / stride, source, depth_scale=depth_scale) as writer:
+    with RecordingWriter(
+        out,
+        [camera],
+        None,
+        float(md.fps) / stride,
+        source,
+        depth_scale=depth_scale,
+        kind=kind,
+        inputs=inputs,
+        force=force,
+    ) as writer:
         bar = tqdm(
             total=expected_frames,
             desc=f"{source.get('layout', 'record')}",
@@ -103,12 +135,20 @@ def stream_to_recording(
     return Recording.open(out)
 
 
-def record_realsense(out: str | Path, cfg: RecordConfig = RecordConfig(), progress: bool = True):
-    """Record from a live RealSense until Ctrl-C, `max_frames` or `duration_s`; returns the Recording."""
+def record_realsense(
+    out: str | Path, cfg: RecordConfig = RecordConfig(), progress: bool = True, force: bool = False
+) -> Recording:
+    """Record from a live RealSense until Ctrl-C, `max_frames` or `duration_s`; returns the Recording.
+
+    `out` follows the output rule (`spare_twin.output`), checked before the device is opened; `force`
+    replaces what the rule would refuse.
+    """
     import time
 
     import open3d as o3d
 
+    inputs = (cfg.bag,) if cfg.bag else ()  # the raw .bag must not land inside the folder that is swapped in
+    check_output(out, RECORD, inputs, force)
     if not o3d.t.io.RealSenseSensor.list_devices():
         raise SpareTwinError("no Intel RealSense device found (check the USB 3 cable and `rs-enumerate-devices`)")
     config = {
@@ -155,6 +195,9 @@ def record_realsense(out: str | Path, cfg: RecordConfig = RecordConfig(), progre
             _Opts,
             cfg.max_frames,
             lambda: sensor.get_timestamp() * 1e-6,
+            kind=RECORD,
+            inputs=inputs,
+            force=force,
         )
     finally:
         sensor.stop_capture()

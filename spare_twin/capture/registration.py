@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from spare_twin.capture.checks import fraction, positive, whole
 from spare_twin.capture.frames import o3d_intrinsic, rotation_error_deg, to_o3d_rgbd
 from spare_twin.errors import SpareTwinError
 
@@ -58,12 +59,24 @@ class RegistrationConfig:
     """seed of open3d's RANSAC."""
 
     def __post_init__(self):
-        if self.voxel_m <= 0 or self.max_depth_m <= 0 or not self.icp_distances_m:
-            raise SpareTwinError("registration: voxel_m, max_depth_m must be positive and icp_distances_m non-empty")
+        for name in ("voxel_m", "max_depth_m", "fpfh_voxel_m"):
+            positive(name, getattr(self, name))
+        if not self.icp_distances_m:
+            raise SpareTwinError("icp_distances_m: must name at least one ICP distance")
+        for d in self.icp_distances_m:
+            positive("icp_distances_m", d)
+        for name in ("min_fitness", "retry_fitness", "ransac_confidence", "edge_prune_threshold"):
+            fraction(name, getattr(self, name))
+        whole("icp_iterations", self.icp_iterations, 1)
+        whole("ransac_iterations", self.ransac_iterations, 1)
+        whole("seed", self.seed, 0)
         if self.global_init not in ("auto", "always", "never"):
-            raise SpareTwinError(f"registration: global_init must be auto, always or never, not {self.global_init!r}")
-        if any(g < 2 for g in self.loop_gaps_frames):
-            raise SpareTwinError("registration: loop gaps must be at least 2 (1 = neighbours, always present)")
+            raise SpareTwinError(f"global_init {self.global_init!r}: must be auto, always or never")
+        for g in self.loop_gaps_frames:
+            if not isinstance(g, int) or isinstance(g, bool) or g < 2:
+                raise SpareTwinError(
+                    f"loop_gaps_frames {g}: each gap must be a whole number >= 2 (1 = neighbours, always there)"
+                )
 
 
 @dataclass

@@ -70,9 +70,12 @@ def simulated_capture(
     )
 
     step("import: the capture as a 7-Scenes folder, read back as a real capture is")
-    export_7scenes(sensor, out_dir / "sensor_capture_7scenes", poses=False)
+    # out_dir is this function's: its intermediate folders are replaced whatever an earlier run left
+    export_7scenes(sensor, out_dir / "sensor_capture_7scenes", poses=False, force=True)
     real = out_dir / "real"
-    import_folder(out_dir / "sensor_capture_7scenes", "7scenes", real, ImportOptions(fps=10.0, progress=progress))
+    import_folder(
+        out_dir / "sensor_capture_7scenes", "7scenes", real, ImportOptions(fps=10.0, progress=progress), force=True
+    )
     truth = Recording.open(sensor).ground_truth()
     Recording.open(real).write_ground_truth({k: np.asarray(truth[k]) for k in OBJECT_TRUTH})
 

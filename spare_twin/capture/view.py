@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.checks import whole
 from spare_twin.capture.fusion import read_ply_points
-from spare_twin.errors import SpareTwinError
+from spare_twin.output import RRD, check_output, writing
 from spare_twin.recording import Recording
 
 
@@ -37,6 +38,11 @@ class ViewConfig:
     max_points: int = 300_000
     """subsample the fused cloud to at most this many points (the viewer stays responsive)."""
     seed: int = 0
+
+    def __post_init__(self):
+        whole("every", self.every, 1)
+        whole("max_points", self.max_points, 1)
+        whole("seed", self.seed, 0)
 
 
 def _blueprint(cams: list[str]):
@@ -57,28 +63,64 @@ def _blueprint(cams: list[str]):
     )
 
 
-def log_recording(root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfig(), progress: bool = True) -> dict:
-    """Write `rrd` for the recording at `root`; returns what was logged."""
+def log_recording(
+    root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfig(), progress: bool = True, force: bool = False
+) -> dict:
+    """Write `rrd` for the recording at `root`; returns what was logged.
+
+    `rrd` follows the output rule (`spare_twin.output`): absent, empty or an earlier .rrd, unless
+    `force`; never inside the recording. Every picture to log is decoded first, so a damaged one is
+    an error before anything is written.
+    """
     import rerun as rr
     from tqdm import tqdm
 
     rec = Recording.open(root)
     rec.validate()
-    if cfg.every < 1:
-        raise SpareTwinError(f"every {cfg.every}: must be at least 1")
     reg = rec.registration
     has_object = reg is not None and reg.object is not None
     T_obj_world = np.linalg.inv(reg.T_world_object) if has_object else np.eye(4)
     cams = [c.name for c in rec.cameras]
-    rrd = Path(rrd)
-    rrd.parent.mkdir(parents=True, exist_ok=True)
-    tmp = rrd.with_name(f".{rrd.name}.tmp")
-    stream = rr.RecordingStream("spare-twin-capture", recording_id=str(rec.root.resolve()))
-    stream.save(tmp, default_blueprint=_blueprint(cams))
+    frames = range(0, rec.n_frames, cfg.every)
+    check_output(rrd, RRD, inputs=[rec.root], force=force)
+    for f in frames:  # the colour is logged as stored, undecoded: decode it here to know it is sound
+        for c in rec.cameras:
+            rec.color(c.name, f)
+            rec.depth_raw(c.name, f)
+    logged = {"rrd": str(rrd), "cameras": cams, "frames": 0, "fused_points": 0, "object_points": 0}
+    with writing(rrd, RRD, inputs=[rec.root], force=force) as tmp:
+        stream = rr.RecordingStream("spare-twin-capture", recording_id=str(rec.root.resolve()))
+        stream.save(tmp, default_blueprint=_blueprint(cams))
+        try:
+            _log_scene(stream, rec, T_obj_world, has_object, cfg, logged)
+            ts = rec.timestamps_s
+            for f in tqdm(frames, desc="view", unit="frame", file=sys.stderr, disable=not progress):
+                stream.set_time("frame", sequence=f)
+                stream.set_time("time", duration=float(ts[f]))
+                for c in rec.cameras:
+                    if c.poses == "per_frame":
+                        _log_pose(stream, c.name, T_obj_world @ rec.T_world_camera(c.name, f))
+                    base = f"world/cameras/{c.name}/image"
+                    stream.log(
+                        f"{base}/color",
+                        rr.EncodedImage(contents=rec.path(c.name, "color", f).read_bytes(), media_type="image/png"),
+                    )
+                    stream.log(f"{base}/depth", rr.DepthImage(rec.depth_raw(c.name, f), meter=1.0 / rec.depth_scale))
+                logged["frames"] += 1
+            stream.flush()
+        finally:  # the file is complete and closed before it is swapped in (or removed)
+            stream.disconnect()
+    return logged
+
+
+def _log_scene(stream, rec: Recording, T_obj_world: np.ndarray, has_object: bool, cfg: ViewConfig, logged: dict):
+    """What does not change from frame to frame: view axes, fused and object clouds, the cameras."""
+    import rerun as rr
+
     up = rr.ViewCoordinates.RIGHT_HAND_Z_UP if has_object else rr.ViewCoordinates.RIGHT_HAND_Y_DOWN
     stream.log("world", up, static=True)
     rng = np.random.default_rng(cfg.seed)
-    logged = {"rrd": str(rrd), "cameras": cams, "frames": 0, "fused_points": 0, "object_points": 0}
+    reg = rec.registration
     clouds = {} if reg is None else {"fused": reg.fused, "object": reg.object_file}
     for name, rel in clouds.items():
         if rel and (rec.root / rel).is_file():
@@ -106,25 +148,6 @@ def log_recording(root: str | Path, rrd: str | Path, cfg: ViewConfig = ViewConfi
         )
         if c.poses == "fixed" and c.T_world_camera is not None:
             _log_pose(stream, c.name, T_obj_world @ c.T_world_camera, static=True)
-    ts = rec.timestamps_s
-    frames = range(0, rec.n_frames, cfg.every)
-    for f in tqdm(frames, desc="view", unit="frame", file=sys.stderr, disable=not progress):
-        stream.set_time("frame", sequence=f)
-        stream.set_time("time", duration=float(ts[f]))
-        for c in rec.cameras:
-            if c.poses == "per_frame":
-                _log_pose(stream, c.name, T_obj_world @ rec.T_world_camera(c.name, f))
-            base = f"world/cameras/{c.name}/image"
-            stream.log(
-                f"{base}/color",
-                rr.EncodedImage(contents=rec.path(c.name, "color", f).read_bytes(), media_type="image/png"),
-            )
-            stream.log(f"{base}/depth", rr.DepthImage(rec.depth_raw(c.name, f), meter=1.0 / rec.depth_scale))
-        logged["frames"] += 1
-    stream.flush()
-    stream.disconnect()
-    tmp.replace(rrd)
-    return logged
 
 
 def _log_pose(stream, cam: str, T: np.ndarray, static: bool = False) -> None:

@@ -51,7 +51,9 @@ def bench_capture(args: argparse.Namespace) -> int:
         loops = tuple(int(v) for v in args.loop_gaps.split(",") if v.strip())
     except ValueError:
         raise SpareTwinError("--gaps / --loop-gaps: expected comma-separated integers") from None
-    with flags(data_dir="--data"):
+    with flags(
+        data_dir="--data", gaps="--gaps", voxel_m="--voxel", loop_gaps_frames="--loop-gaps", max_frames="--max-frames"
+    ):
         r = bench_registration(
             args.data or DEFAULT_DATA,
             gaps,

@@ -25,6 +25,7 @@ def add_bench(bsub) -> None:
     p.add_argument("--objects", type=int, default=12, help="objects to capture (default 12: two per link count)")
     p.add_argument("--seed", type=int, default=1000, help="seed of the first object (default 1000)")
     p.add_argument("--model", metavar="CKPT", help="network checkpoint (default: the shipped model)")
+    p.add_argument("--force", action="store_true", help="replace --out even if it is not an earlier sim2real benchmark")
     p.add_argument("--json", action="store_true", help="print the table as one JSON object on stdout")
     p.set_defaults(func=bench_sim2real)
 
@@ -34,7 +35,7 @@ def bench_sim2real(args: argparse.Namespace) -> int:
     from spare_twin.commands.compare import print_table
     from spare_twin.compare.batch import bench_sim2real as run_bench
 
-    with flags(objects="--objects", seed="--seed"):
-        table, files = run_bench(args.out, args.objects, args.seed, args.model)
+    with flags(objects="--objects", seed="--seed", model="--model", force="--force"):
+        table, files = run_bench(args.out, args.objects, args.seed, args.model, force=args.force)
     print_table(table, files, args.json)
     return 0

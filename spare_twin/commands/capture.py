@@ -28,6 +28,9 @@ def _flags(hints: dict[str, str] | None = None, **param_to_flag: str) -> Iterato
         raise SpareTwinError(message) from None
 
 
+_FORCE_HELP = "replace what is there even if it is not an earlier {what} (once the new one is complete)"
+
+
 def _out(args, obj: dict, lines: list[str]) -> None:
     """--json: exactly one JSON object on stdout; else human-readable lines."""
     if getattr(args, "json", False):
@@ -47,7 +50,8 @@ def register(sub) -> None:
     p.set_defaults(func=lambda args: (p.print_help(sys.stderr), 2)[1])
 
     r = csub.add_parser("record", help="record from a live Intel RealSense (Ctrl-C stops and keeps every frame)")
-    r.add_argument("--out", required=True, help="recording folder to write")
+    r.add_argument("--out", required=True, help="recording folder to write (a new or empty folder, or an earlier one)")
+    r.add_argument("--force", action="store_true", help=_FORCE_HELP.format(what="capture record output"))
     r.add_argument("--width", type=int, default=640)
     r.add_argument("--height", type=int, default=480)
     r.add_argument("--fps", type=int, default=30)
@@ -61,7 +65,10 @@ def register(sub) -> None:
     i = csub.add_parser("import", help="a recorded sequence (7scenes, tum, open3d folder, .bag) into a recording")
     i.add_argument("src", help="source folder (or .bag file with --layout bag)")
     i.add_argument("--layout", required=True, choices=("7scenes", "tum", "open3d", "bag"))
-    i.add_argument("--out", required=True, help="recording folder to write (replaced atomically if it exists)")
+    i.add_argument(
+        "--out", required=True, help="recording folder to write (a new or empty folder, or an earlier import)"
+    )
+    i.add_argument("--force", action="store_true", help=_FORCE_HELP.format(what="capture import output"))
     i.add_argument("--intrinsics", default=None, help="fx,fy,cx,cy in pixels (overrides any intrinsics file)")
     i.add_argument(
         "--depth-scale",
@@ -125,6 +132,7 @@ def register(sub) -> None:
 
     b = csub.add_parser("board", help="write the ChArUco calibration board (PNG and PDF at true print size)")
     b.add_argument("--out", required=True, help="folder for board.png, board.pdf, board.json")
+    b.add_argument("--force", action="store_true", help=_FORCE_HELP.format(what="capture board output"))
     b.add_argument("--squares", default="7x5", help="squares across x down (default 7x5)")
     b.add_argument("--square-mm", type=float, default=35.0)
     b.add_argument("--marker-mm", type=float, default=26.0)
@@ -148,7 +156,8 @@ def register(sub) -> None:
 
     v = csub.add_parser("view", help="log a recording to a Rerun .rrd file (cameras, colour, depth, fused cloud)")
     v.add_argument("rec", help="recording folder")
-    v.add_argument("--rrd", required=True, help="output .rrd file")
+    v.add_argument("--rrd", required=True, help="output .rrd file (a new file, or an earlier .rrd)")
+    v.add_argument("--force", action="store_true", help="replace --rrd even if it is not a Rerun file (never a folder)")
     v.add_argument("--every", type=int, default=1, help="log every n-th frame")
     v.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     v.set_defaults(func=cmd_view)
@@ -165,11 +174,15 @@ def cmd_record(args: argparse.Namespace) -> int:
     from spare_twin.capture.record import RecordConfig, record_realsense
 
     progress = _progress(args)
-    rec = record_realsense(
-        args.out,
-        RecordConfig(args.width, args.height, args.fps, args.frames, args.seconds, args.serial, args.bag),
-        progress=progress,
-    )
+    with _flags(
+        width="--width", height="--height", fps="--fps", max_frames="--frames", duration_s="--seconds", bag="--bag"
+    ):
+        rec = record_realsense(
+            args.out,
+            RecordConfig(args.width, args.height, args.fps, args.frames, args.seconds, args.serial, args.bag),
+            progress=progress,
+            force=args.force,
+        )
     _out(
         args,
         {"recording": str(rec.root), "frames": rec.n_frames, "fps": rec.fps},
@@ -201,7 +214,7 @@ def cmd_import(args: argparse.Namespace) -> int:
             stride=args.stride,
             progress=progress,
         )
-        rec = import_folder(args.src, args.layout, args.out, opts)
+        rec = import_folder(args.src, args.layout, args.out, opts, force=args.force)
     cam = rec.cameras[0]
     _out(
         args,
@@ -232,14 +245,19 @@ def cmd_register(args: argparse.Namespace) -> int:
         gaps = tuple(int(v) for v in args.loop_gaps.split(",") if v.strip())
     except ValueError:
         raise SpareTwinError(f"--loop-gaps {args.loop_gaps!r}: expected comma-separated integers") from None
-    reg = RegistrationConfig(
-        voxel_m=args.voxel,
-        max_depth_m=args.max_depth,
-        loop_gaps_frames=gaps,
-        global_init=args.global_init,
-        seed=args.seed,
-    )
-    fus = FusionConfig(voxel_m=args.tsdf_voxel, sdf_trunc_m=4 * args.tsdf_voxel, max_depth_m=args.max_depth)
+    with _flags(
+        voxel_m="--voxel", max_depth_m="--max-depth", loop_gaps_frames="--loop-gaps", global_init="--global-init",
+        seed="--seed",
+    ):  # fmt: skip
+        reg = RegistrationConfig(
+            voxel_m=args.voxel,
+            max_depth_m=args.max_depth,
+            loop_gaps_frames=gaps,
+            global_init=args.global_init,
+            seed=args.seed,
+        )
+    with _flags(voxel_m="--tsdf-voxel", sdf_trunc_m="--tsdf-voxel", max_depth_m="--max-depth"):
+        fus = FusionConfig(voxel_m=args.tsdf_voxel, sdf_trunc_m=4 * args.tsdf_voxel, max_depth_m=args.max_depth)
     with _flags({"lower voxel_m": "lower --voxel"}, find="--object"):
         res = register_recording(
             args.rec,
@@ -271,8 +289,12 @@ def cmd_board(args: argparse.Namespace) -> int:
         sx, sy = (int(v) for v in args.squares.lower().split("x"))
     except ValueError:
         raise SpareTwinError(f"--squares {args.squares!r}: expected e.g. 7x5") from None
-    spec = BoardSpec(sx, sy, args.square_mm / 1000, args.marker_mm / 1000, args.dictionary, args.dpi)
-    paths = write_board(spec, args.out)
+    with _flags(
+        squares_x="--squares", squares_y="--squares", square_m="--square-mm", marker_m="--marker-mm",
+        dictionary="--dictionary", dpi="--dpi",
+    ):  # fmt: skip
+        spec = BoardSpec(sx, sy, args.square_mm / 1000, args.marker_mm / 1000, args.dictionary, args.dpi)
+        paths = write_board(spec, args.out, force=args.force)
     _out(
         args,
         {k: str(v) for k, v in paths.items()} | {"size_m": list(spec.size_m)},
@@ -308,7 +330,7 @@ def cmd_view(args: argparse.Namespace) -> int:
 
     progress = _progress(args)
     with _flags(every="--every"):
-        out = log_recording(args.rec, args.rrd, ViewConfig(every=args.every), progress=progress)
+        out = log_recording(args.rec, args.rrd, ViewConfig(every=args.every), progress=progress, force=args.force)
     _out(
         args,
         out,

@@ -13,7 +13,8 @@ def flags(**param_to_flag: str) -> Iterator[None]:
     """Library errors name the parameter at fault ("seed -1: ..."); say it as the user typed it ("--seed -1: ...").
 
     A message that starts with a parameter name (then a space or a colon) gets the flag in its place;
-    an output the output rule refuses names the flag that forces it (the `force` parameter's)."""
+    an output the output rule refuses names the flag that forces it: `force`'s flag, "--force" unless
+    the command names another."""
     try:
         yield
     except SpareTwinError as exc:
@@ -21,9 +22,7 @@ def flags(**param_to_flag: str) -> Iterator[None]:
         from spare_twin.output import OutputRefused
 
         if isinstance(exc, OutputRefused):
-            if "force" not in param_to_flag:
-                raise
-            raise SpareTwinError(exc.message(param_to_flag["force"])) from None
+            raise SpareTwinError(exc.message(param_to_flag.get("force", "--force"))) from None
         message = str(exc)
         for param, flag in param_to_flag.items():
             if message.startswith((f"{param} ", f"{param}:")):

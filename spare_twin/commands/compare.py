@@ -26,6 +26,11 @@ def register(sub) -> None:
     p.add_argument(
         "--sim-out", metavar="DIR", help="where to write the twin's recording (default: REC_DIR_sim_twin beside it)"
     )
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace --rrd, --sim-out or --out even if they are not earlier outputs of compare",
+    )
     p.add_argument("--json", action="store_true", help="print the result as one JSON object on stdout")
     p.set_defaults(func=run)
 
@@ -33,13 +38,15 @@ def register(sub) -> None:
 def run(args: argparse.Namespace) -> int:
     import json
 
+    from spare_twin.commands.common import flags
     from spare_twin.compare.sim_vs_real import compare
 
     if args.batch:
         return run_batch(args)
     if not args.object or not args.real:
         raise SpareTwinError("--object and --real are both needed (or --batch DIR)")
-    result = compare(args.object, args.real, model=args.model, rrd=args.rrd, sim_dir=args.sim_out)
+    with flags(model="--model", force="--force"):
+        result = compare(args.object, args.real, model=args.model, rrd=args.rrd, sim_dir=args.sim_out, force=args.force)
     if args.json:
         print(json.dumps(result.to_json()))
     else:
@@ -58,8 +65,8 @@ def run_batch(args: argparse.Namespace) -> int:
 
     if not args.out:
         raise SpareTwinError("--out TABLE_DIR is needed with --batch")
-    with flags(batch="--batch"):
-        table, files = compare_batch(args.batch, args.out, args.model)
+    with flags(batch="--batch", model="--model", force="--force"):
+        table, files = compare_batch(args.batch, args.out, args.model, force=args.force)
     print_table(table, files, args.json)
     return 0
 

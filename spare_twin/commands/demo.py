@@ -15,6 +15,11 @@ def register(sub) -> None:
     )
     p.add_argument("--out", default="spare-twin-demo", metavar="DIR", help="output folder (default ./spare-twin-demo)")
     p.add_argument("--model", metavar="CKPT", help="network checkpoint (default: the shipped model in models/)")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace --out even if it is not an earlier demo (once the new one is done)",
+    )
     p.set_defaults(func=run)
 
 
@@ -25,7 +30,10 @@ def _step(i: int, what: str) -> None:
 
 
 def run(args) -> int:
+    from spare_twin.commands.common import flags
     from spare_twin.compare.demo import run_demo
 
-    print(run_demo(args.out, args.model, step=_step).summary())
+    with flags(out="--out", model="--model", force="--force"):
+        result = run_demo(args.out, args.model, step=_step, force=args.force)
+    print(result.summary())
     return 0

@@ -35,6 +35,7 @@ def register(sub) -> None:
         help="with --ship: comma-separated tasks it becomes the default for "
         "(predict, count-mv, count-tmp, lengths-mv, e2e-mv, e2e-tmp)",
     )
+    p.add_argument("--force", action="store_true", help="replace --out even if it is not an earlier evaluate output")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=run)
 
@@ -56,6 +57,7 @@ def run(args) -> int:
         ship="--ship",
         tasks="--default-for",
         default_for="--default-for",
+        force="--force",
     ):
         ev = evaluate_model(
             args.model,
@@ -68,6 +70,7 @@ def run(args) -> int:
             ship=args.ship,
             default_for=[t for t in args.default_for.split(",") if t],
             command="spare-twin " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
+            force=args.force,
         )
     if args.json:
         print(json.dumps(ev.to_json()))

@@ -29,7 +29,13 @@ def register(sub) -> None:
         "--config", metavar="SPEC_JSON", help="a chain configuration (an object.json, or a subset of its keys)"
     )
     p.add_argument("--seed", type=int, default=0, help="sampling seed with --links (default 0)")
-    p.add_argument("--out", required=True, metavar="DIR", help="object folder to write (replaced atomically)")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="DIR",
+        help="object folder to write: absent, empty or an earlier object folder (replaced once the new one is whole)",
+    )
+    p.add_argument("--force", action="store_true", help="replace --out even if it holds something else")
     p.add_argument(
         "--print-scale", type=float, metavar="M_PER_PAPER_M", help="physical metres per paper metre (default 0.08)"
     )
@@ -56,6 +62,19 @@ def _bed_mm(text: str | None) -> tuple[float, float] | None:
     return bx, by
 
 
+#: Library parameters (and configuration fields) as `object` spells them on its command line.
+FLAGS = {
+    "n_links": "--links",
+    "seed": "--seed",
+    "config": "--config",
+    "out_dir": "--out",
+    "print_scale": "--print-scale",
+    "parts.pin_clearance_mm": "--clearance",
+    "name": "--name",
+    "force": "--force",
+}
+
+
 def run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -64,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     steps = len(BUILD_STEPS) + (0 if args.no_preview else 1)
     with (
         tqdm(total=steps, desc="object", unit="step", file=sys.stderr, leave=False, disable=None) as bar,
-        flags(n_links="--links", seed="--seed", config="--config", out_dir="--out"),
+        flags(**FLAGS),
     ):
 
         def progress(what):
@@ -82,6 +101,7 @@ def run(args: argparse.Namespace) -> int:
             name=args.name,
             preview=not args.no_preview,
             progress=progress,
+            force=args.force,
         )
     spec, obj = made.folder.spec, made.folder
     if args.json:

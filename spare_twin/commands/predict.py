@@ -37,7 +37,15 @@ def run(args) -> int:
     from spare_twin.commands.common import flags
     from spare_twin.nets.predict import predict_recording
 
-    with flags(frame="--frame", camera="--camera", n_links="--n-links", yaw_hypotheses="--yaw-hypotheses"):
+    with flags(
+        frame="--frame",
+        camera="--camera",
+        print_scale="--print-scale",
+        n_links="--n-links",
+        yaw_hypotheses="--yaw-hypotheses",
+        device="--device",
+        model="--model",
+    ):
         res = predict_recording(
             args.recording,
             args.model,

@@ -16,7 +16,13 @@ def register(sub) -> None:
         "and per-frame ground truth, as a spare-twin recording.",
     )
     p.add_argument("object_dir", metavar="OBJECT_DIR", help="object folder written by `spare-twin object`")
-    p.add_argument("--out", required=True, metavar="REC_DIR", help="recording folder to write (replaced atomically)")
+    p.add_argument(
+        "--out",
+        required=True,
+        metavar="REC_DIR",
+        help="recording folder to write: absent, empty or an earlier render (replaced once the new one is whole)",
+    )
+    p.add_argument("--force", action="store_true", help="replace --out even if it holds something else")
     p.add_argument("--rig", default="spare8", help="rig name in capture/rigs/ or a rig JSON file (default: spare8)")
     p.add_argument("--frames", type=int, default=100, help="frames to record (default: 100)")
     p.add_argument("--fps", type=float, default=10.0, help="frame rate (default: 10)")
@@ -82,8 +88,9 @@ def run(args: argparse.Namespace) -> int:
         noise="--noise",
         hide_poses="--hide-poses",
         rig="--rig",
+        force="--force",
     ):
-        r = render_recording(args.object_dir, args.out, cfg)
+        r = render_recording(args.object_dir, args.out, cfg, force=args.force)
     what = f"{r.cameras} cameras" if cfg.path == "rig" else "1 hand-held camera"
     print(
         f"wrote {r.recording}: {what} x {r.frames} frames at {r.width}x{r.height} "

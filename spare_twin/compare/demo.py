@@ -15,15 +15,17 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from spare_twin.capture.simulated import SensorCaptureConfig, simulated_capture
 from spare_twin.compare.result import Comparison, summary_row
 from spare_twin.compare.sim_vs_real import compare
 from spare_twin.config import ChainSpec
+from spare_twin.nets.checkpoint import default_model, load_model
 from spare_twin.nets.predict import Prediction, predict_recording
 from spare_twin.object.folder import build_object
+from spare_twin.output import writing
 from spare_twin.sim.render import RenderConfig, render_recording
 
 #: The demo's object: a 3-link chain as the paper's distribution makes them (lengths in range, scaled
@@ -74,36 +76,62 @@ class DemoResult:
         return "\n".join(lines)
 
 
+#: The output kind of the demo's folder (`spare_twin.output`).
+DEMO = "demo"
+
+
 def run_demo(
-    out: str | Path, model: str | Path | None = None, step: Callable[[int, str], None] = lambda i, what: None
+    out: str | Path,
+    model: str | Path | None = None,
+    step: Callable[[int, str], None] = lambda i, what: None,
+    force: bool = False,
 ) -> DemoResult:
-    """Run the whole chain into `out`; `step(i, what)` announces each of the STEPS stages."""
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    """Run the whole chain into `out`; `step(i, what)` announces each of the STEPS stages.
+
+    `out` is one output (`spare_twin.output`): absent, empty or an earlier demo's; `force` replaces
+    anything else, and only once the new demo is complete (it is built beside `out`, then swapped in)."""
+    model = Path(model or default_model("predict"))
+    load_model(model)  # a bad checkpoint is refused now, not after minutes of work
     t0 = time.perf_counter()
     spec = DEMO_CHAIN
+    with writing(out, DEMO, (model,), force) as tmp:
+        step(
+            1,
+            f"printable object: {spec.n_links} moving links, "
+            + ", ".join(f"{x:.0f}" for x in spec.link_lengths_mm)
+            + " mm",
+        )
+        obj = build_object(spec, tmp / "object")
 
-    step(
-        1,
-        f"printable object: {spec.n_links} moving links, "
-        + ", ".join(f"{x:.0f}" for x in spec.link_lengths_mm)
-        + " mm",
+        step(2, "twin simulation: the training rig's 8 cameras")
+        rig_rec = tmp / "sim_rig"
+        render_recording(obj.root, rig_rec, RenderConfig(frames=RIG_FRAMES, seed=SEED))
+
+        stages = iter(range(3, 6))
+        real_rec = simulated_capture(
+            obj.root, tmp, SensorCaptureConfig(seed=SEED), step=lambda what: step(next(stages), what)
+        )
+
+        step(6, "predict: the shipped model on the twin and on the capture")
+        rig_pred = predict_recording(rig_rec, model, progress=False)
+
+        step(7, "compare: twin fitted to the real cloud, rendered through the same cameras, both scored")
+        result = compare(obj.root, real_rec, model=model, rrd=tmp / "compare.rrd", sim_dir=tmp / "sim_twin")
+    # what the demo reports names the folder it is now in, not the one it was built in
+    out = Path(out)
+
+    def moved(p: Prediction) -> Prediction:
+        return replace(p, recording=str(out / Path(p.recording).relative_to(tmp)))
+
+    rig_pred = moved(rig_pred)
+    result = replace(
+        result,
+        sim=moved(result.sim),
+        real=moved(result.real),
+        real_estimated_frame=moved(result.real_estimated_frame),
+        sim_recording=out / "sim_twin",
+        rrd=str(out / "compare.rrd"),
     )
-    obj = build_object(spec, out / "object")
-
-    step(2, "twin simulation: the training rig's 8 cameras")
-    rig_rec = out / "sim_rig"
-    render_recording(obj.root, rig_rec, RenderConfig(frames=RIG_FRAMES, seed=SEED))
-
-    stages = iter(range(3, 6))
-    real_rec = simulated_capture(
-        obj.root, out, SensorCaptureConfig(seed=SEED), step=lambda what: step(next(stages), what)
+    return DemoResult(
+        out / "object", obj.urdf_path.name, out / "compare.rrd", rig_pred, result, time.perf_counter() - t0
     )
-
-    step(6, "predict: the shipped model on the twin and on the capture")
-    rig_pred = predict_recording(rig_rec, model, progress=False)
-
-    step(7, "compare: twin fitted to the real cloud, rendered through the same cameras, both scored")
-    rrd = out / "compare.rrd"
-    result = compare(obj.root, real_rec, model=model, rrd=rrd, sim_dir=out / "sim_twin")
-    return DemoResult(obj.root, obj.urdf_path.name, rrd, rig_pred, result, time.perf_counter() - t0)

@@ -16,11 +16,13 @@ the length bar charts and the summary.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from spare_twin.output import RRD, writing
 from spare_twin.recording import Recording
 
 
@@ -115,13 +117,18 @@ def _blueprint():
     )
 
 
-def log_comparison(rrd: str | Path, log: ComparisonLog, every: int = 1) -> None:
-    """Write the comparison to `rrd` (under a temporary name, renamed when complete)."""
+def log_comparison(
+    rrd: str | Path, log: ComparisonLog, every: int = 1, inputs: Iterable = (), force: bool = False
+) -> None:
+    """Write the comparison to `rrd`, an output made from `inputs` (`spare_twin.output`: under a
+    temporary name, in place when complete; `force` replaces a file that is not an earlier .rrd)."""
+    with writing(rrd, RRD, inputs, force) as tmp:
+        _log(tmp, log, every)
+
+
+def _log(tmp: Path, log: ComparisonLog, every: int) -> None:
     import rerun as rr
 
-    rrd = Path(rrd)
-    rrd.parent.mkdir(parents=True, exist_ok=True)
-    tmp = rrd.with_name(f".{rrd.name}.tmp")
     stream = rr.RecordingStream("spare-twin-compare")
     stream.save(tmp, default_blueprint=_blueprint())
     stream.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
@@ -162,4 +169,3 @@ def log_comparison(rrd: str | Path, log: ComparisonLog, every: int = 1) -> None:
             stream.log(f"{side}/frame/depth", rr.DepthImage(rec.depth_m(cam, f), meter=1.0))
     stream.flush()
     stream.disconnect()
-    tmp.replace(rrd)

@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -27,11 +28,16 @@ from spare_twin.compare.rerun_log import ComparisonLog, log_comparison
 from spare_twin.compare.result import Comparison, Truth
 from spare_twin.config import COLORS
 from spare_twin.errors import SpareTwinError
+from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.predict import predict_recording
 from spare_twin.object.folder import ObjectFolder, load_object
 from spare_twin.object.kinematics import forward_kinematics
+from spare_twin.output import RRD, check_output
 from spare_twin.recording import Camera, Recording, RecordingWriter
 from spare_twin.sim.twin import Twin
+
+#: The output kind of the twin's recording (the marker `spare_twin.output` writes in it).
+SIM_TWIN = "compare sim twin"
 
 
 @dataclass(frozen=True)
@@ -58,9 +64,12 @@ def render_twin_through(
     real: Recording,
     out_dir: Path,
     cfg: CompareConfig,
+    inputs: tuple = (),
+    force: bool = False,
 ) -> None:
     """The posed twin seen by the real recording's cameras (frames, intrinsics, poses), no noise;
-    `T_world_base` is the twin's base pose in the real recording's world."""
+    `T_world_base` is the twin's base pose in the real recording's world. `out_dir` is an output of
+    kind SIM_TWIN made from `inputs` (`spare_twin.output`)."""
     T_base_world = np.linalg.inv(T_world_base)
     cameras, poses = [], {}
     for c in real.cameras:
@@ -69,7 +78,9 @@ def render_twin_through(
             raise SpareTwinError(f"{real.root}: camera {c.name} has no poses to render the twin through")
         poses[c.name] = np.stack([T_base_world @ T for T in T_world_camera])
         cameras.append(Camera(c.name, c.width, c.height, c.K, None, "per_frame"))
-    source = {"kind": "sim", "sensor_model": "pybullet-tinyrenderer", "twin_of": str(real.root)}
+    # relative to the twin's recording, so it stays true when a whole folder (the demo's) moves
+    twin_of = os.path.relpath(os.path.abspath(real.root), os.path.abspath(out_dir))
+    source = {"kind": "sim", "sensor_model": "pybullet-tinyrenderer", "twin_of": twin_of}
     with (
         Twin() as twin,
         RecordingWriter(
@@ -81,6 +92,9 @@ def render_twin_through(
             object_config=obj.spec.to_dict(),
             rig=None,
             timestamps_s=list(real.timestamps_s),
+            kind=SIM_TWIN,
+            inputs=inputs,
+            force=force,
         ) as rec,
     ):
         twin.load(obj)
@@ -136,12 +150,22 @@ def compare(
     rrd: str | Path | None = None,
     sim_dir: str | Path | None = None,
     cfg: CompareConfig = CompareConfig(),
+    force: bool = False,
 ) -> Comparison:
     """Sim vs real for the printed object in `object_dir` and its recording `real_dir` (see the module
     doc); the twin's recording goes to `sim_dir` (default `<real_dir>_sim_twin` beside it), the Rerun
-    log to `rrd` when given."""
-    obj = load_object(object_dir)
+    log to `rrd` when given. Both are outputs (`spare_twin.output`: `force` replaces what is not an
+    earlier one); every input and output is checked before anything is written, the real recording's
+    registration included."""
+    obj = load_object(object_dir)  # verifies the meshes: a broken STL would fit and render a wrong twin
     real = Recording.open(real_dir)
+    model = model or ckpt.default_model("predict")
+    ckpt.load_model(model)  # a bad checkpoint is refused now, not after minutes of registration and fitting
+    sim_dir = Path(sim_dir) if sim_dir else Path(real.root).with_name(Path(real.root).name + "_sim_twin")
+    inputs = (object_dir, real.root, model)
+    check_output(sim_dir, SIM_TWIN, inputs, force)
+    if rrd is not None:
+        check_output(rrd, RRD, (*inputs, sim_dir), force)
     if real.registration is None:
         print("compare: registering the real recording (poses, fusion, object)", file=sys.stderr)
         register_recording(real.root, find="require", progress=True)
@@ -154,8 +178,7 @@ def compare(
     fit = fit_articulated(obj, cloud_obj, views=depth_views(real, T_object_world, cfg.fit_views))
     T_world_base = T_world_object @ fit.T_object_base
 
-    sim_dir = Path(sim_dir) if sim_dir else Path(real.root).with_name(Path(real.root).name + "_sim_twin")
-    render_twin_through(obj, fit.joint_angles_rad, T_world_base, real, sim_dir, cfg)
+    render_twin_through(obj, fit.joint_angles_rad, T_world_base, real, sim_dir, cfg, inputs, force)
 
     print("compare: running the network on the real and the sim recording", file=sys.stderr)
     # Both sides in the same object frame: the sim twin stands at its origin by construction, the real
@@ -178,13 +201,22 @@ def compare(
     )
     result = Comparison(truth, sim_pred, real_pred, own_pred, fit, T_world_object, sim_dir, cfg.settings())
     if rrd is not None:
-        _write_rrd(rrd, result, obj, cloud_obj, colors, real, Recording.open(sim_dir), cfg)
+        _write_rrd(rrd, result, obj, cloud_obj, colors, real, Recording.open(sim_dir), cfg, (*inputs, sim_dir), force)
         result = replace(result, rrd=str(rrd))
     return result
 
 
 def _write_rrd(
-    rrd, result: Comparison, obj: ObjectFolder, cloud_obj, colors, real: Recording, sim: Recording, cfg: CompareConfig
+    rrd,
+    result: Comparison,
+    obj: ObjectFolder,
+    cloud_obj,
+    colors,
+    real: Recording,
+    sim: Recording,
+    cfg: CompareConfig,
+    inputs: tuple,
+    force: bool,
 ) -> None:
     fit = result.fit
     # Everything in the twin's base frame: the cloud moves by the fitted base pose.
@@ -210,4 +242,6 @@ def _write_rrd(
             sim_rec=sim,
         ),
         every=cfg.rrd_every,
+        inputs=inputs,
+        force=force,
     )

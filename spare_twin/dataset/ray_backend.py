@@ -66,7 +66,7 @@ def import_ray():
     try:
         import ray
     except ImportError:
-        raise SpareTwinError("backend ray: the ray package is not installed (pip install 'ray[default]')") from None
+        raise SpareTwinError("backend ray: the ray package is not installed (pip install ray==2.60.0)") from None
     return ray
 
 
@@ -93,6 +93,8 @@ class RaySession:
                     ray.init(address=self.address, **kwargs)
             except (ConnectionError, ValueError, RuntimeError) as exc:
                 first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                if self.address is None:
+                    raise SpareTwinError(f"backend ray: cannot start Ray on this machine ({first})") from None
                 raise SpareTwinError(f"ray_address {self.address}: cannot connect to a Ray cluster ({first})") from None
         self.connect_s = time.perf_counter() - t0
         return self

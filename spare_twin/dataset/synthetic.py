@@ -1,8 +1,8 @@
 """A small analytic stand-in for the twin simulation: SPARE chains as capsules, ray-cast into an
-8-camera depth/grey rig. It yields exactly the CONTRACTS.md sample dict, so the networks, training,
+8-camera depth/grey rig. It yields exactly the docs/CONTRACTS.md sample dict, so the networks, training,
 evaluation and prediction can be developed and tested without pybullet or a stored dataset.
 
-Geometry follows CONTRACTS.md: world z up, table at z = 0, joints about +y, link k in its own layer
+Geometry follows docs/CONTRACTS.md: world z up, table at z = 0, joints about +y, link k in its own layer
 at y = k * 6.4 mm, link k's length along its own +z, physical size = paper length * print_scale.
 Every sample is a pure function of (seed, split, index).
 
@@ -22,6 +22,7 @@ import numpy as np
 import torch.utils.data as _tud
 
 from spare_twin.config import PartDims, sample_lengths
+from spare_twin.dataset.torch_data import stream_indices
 from spare_twin.errors import SpareTwinError
 from spare_twin.sim.rig import Rig
 
@@ -276,7 +277,5 @@ class SyntheticOnTheFly(_tud.IterableDataset):
 
         info = _tud.get_worker_info()
         wid, nw = (info.id, info.num_workers) if info else (0, 1)
-        i, step = self.rank + self.world_size * wid, self.world_size * nw
-        while True:
+        for i in stream_indices(self.rank, self.world_size, wid, nw, None):
             yield {k: torch.as_tensor(v) for k, v in make_sample(self.spec, "fresh", i).items()}
-            i += step

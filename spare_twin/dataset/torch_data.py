@@ -208,6 +208,16 @@ def TemporalDataset(root, split="train", modality="depth", **kw) -> SpareDataset
     return SpareDataset(root, split, "tmp", modality, **kw)
 
 
+def stream_indices(rank: int, world_size: int, worker: int, workers: int, sequences: int | None):
+    """The sequence numbers (0-based) that data-loader `worker` of `workers` in process `rank` of `world_size`
+    renders: stream s = rank + world_size * worker of S = world_size * workers takes s, s + S, s + 2S, ...
+    below `sequences` (None: endless). The streams are disjoint and cover 0 .. sequences - 1."""
+    k, step = rank + world_size * worker, world_size * workers
+    while sequences is None or k < sequences:
+        yield k
+        k += step
+
+
 class OnTheFlyDataset(IterableDataset):
     """Unlimited fresh sequences rendered inside the data-loader workers; nothing is stored.
 
@@ -256,8 +266,7 @@ class OnTheFlyDataset(IterableDataset):
         twin = Twin()
         work = Path(tempfile.mkdtemp(prefix="spare-twin-otf-"))
         try:
-            k, step = self.rank + self.world_size * wid, self.world_size * nw
-            while self.sequences is None or k < self.sequences:
+            for k in stream_indices(self.rank, self.world_size, wid, nw, self.sequences):
                 index = self.first_index + k
                 seq = render_sequence(self.cfg, seed, index, twin, work)
                 rng = np.random.default_rng([seed, index, 7])
@@ -290,7 +299,6 @@ class OnTheFlyDataset(IterableDataset):
                         rng,
                         self.pose_jitter,
                     )
-                k += step
         finally:
             twin.close()
             shutil.rmtree(work, ignore_errors=True)

@@ -5,6 +5,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import shutil
 import tempfile
 from collections.abc import Sequence
@@ -20,6 +21,10 @@ from spare_twin.nets import metrics
 from spare_twin.nets.data import open_split
 from spare_twin.nets.plots import write_confusion_png
 from spare_twin.nets.train import pick_device, run_inference, summarize
+from spare_twin.output import writing
+
+#: The output kind of `out_dir` (`spare_twin.output`).
+EVALUATE = "evaluate"
 
 
 @dataclass(frozen=True)
@@ -80,10 +85,12 @@ def evaluate(
     out_dir: str | Path | None = None,
     max_samples: int | None = None,
     progress: bool = True,
+    force: bool = False,
 ) -> Evaluation:
     """Count accuracy, E_L (end-to-end where the model can, else n known), per-n breakdown and the
     confusion matrix (confusion_matrix.png and evaluation.json under `out_dir`) over `split`, on a
-    seeded random subset of `max_samples` if given. No `model_path`: the shipped predict model."""
+    seeded random subset of `max_samples` if given. No `model_path`: the shipped predict model.
+    `out_dir` is an output (`spare_twin.output`): `force` replaces a folder that is not an earlier one."""
     _check_count("batch_size", batch_size)
     _check_count("max_samples", max_samples, optional=True)
     model_path = model_path or ckpt.default_model("predict")
@@ -92,32 +99,39 @@ def evaluate(
     ds = open_split(data_dir, split, net)
     if len(ds) == 0:
         raise SpareTwinError(f"data_dir {data_dir}: split {split!r} is empty")
-    idx = None
-    if max_samples is not None and max_samples < len(ds):
-        idx = torch.randperm(len(ds), generator=torch.Generator().manual_seed(0))[:max_samples].tolist()
-    pred = run_inference(model, net, ds, dev, batch_size, idx, f"evaluate {split}", progress)
-    res = summarize(pred)
-    cm = png = None
-    if "pred_n" in pred:
-        cm = metrics.confusion_matrix(pred["true_n"], pred["pred_n"])
-        if out_dir is not None:
-            png = write_confusion_png(cm, Path(out_dir) / "confusion_matrix.png", f"{ck['preset']} ({split})")
-    out = Evaluation(
-        count_accuracy=res["count_accuracy"],
-        E_L=res["E_L"],
-        instances=res["instances"],
-        split=split,
-        E_L_end_to_end=res["E_L_end_to_end"],
-        E_L_n_known=res["E_L_n_known"],
-        per_n=res["per_n"],
-        model=str(model_path),
-        preset=ck["preset"],
-        data=str(data_dir),
-        confusion_matrix=None if cm is None else cm.tolist(),
-        confusion_png=None if png is None else str(png),
+    outputs = (
+        contextlib.nullcontext(None)
+        if out_dir is None
+        else writing(out_dir, EVALUATE, (model_path, data_dir), force)  # checked before the inference
     )
-    if out_dir is not None:
-        write_json_atomic(Path(out_dir) / "evaluation.json", out.to_json())
+    with outputs as tmp:
+        idx = None
+        if max_samples is not None and max_samples < len(ds):
+            idx = torch.randperm(len(ds), generator=torch.Generator().manual_seed(0))[:max_samples].tolist()
+        pred = run_inference(model, net, ds, dev, batch_size, idx, f"evaluate {split}", progress)
+        res = summarize(pred)
+        cm = png = None
+        if "pred_n" in pred:
+            cm = metrics.confusion_matrix(pred["true_n"], pred["pred_n"])
+            if tmp is not None:
+                write_confusion_png(cm, tmp / "confusion_matrix.png", f"{ck['preset']} ({split})")
+                png = Path(out_dir) / "confusion_matrix.png"  # where it is once the output is in place
+        out = Evaluation(
+            count_accuracy=res["count_accuracy"],
+            E_L=res["E_L"],
+            instances=res["instances"],
+            split=split,
+            E_L_end_to_end=res["E_L_end_to_end"],
+            E_L_n_known=res["E_L_n_known"],
+            per_n=res["per_n"],
+            model=str(model_path),
+            preset=ck["preset"],
+            data=str(data_dir),
+            confusion_matrix=None if cm is None else cm.tolist(),
+            confusion_png=None if png is None else str(png),
+        )
+        if tmp is not None:
+            write_json_atomic(tmp / "evaluation.json", out.to_json())
     return out
 
 
@@ -145,6 +159,7 @@ def evaluate_model(
     command: str = "",
     models_dir: Path = ckpt.MODELS_DIR,
     progress: bool = True,
+    force: bool = False,
 ) -> Evaluation:
     """`evaluate`, then with `ship`: record the metrics (and `command`, how they were made) in a copy
     of the checkpoint and ship it to `models_dir` as <ship>.pt with a model card, the default model
@@ -153,7 +168,7 @@ def evaluate_model(
         raise SpareTwinError("default_for: only with ship (a model becomes a default when it is shipped)")
     if ship is not None:
         ckpt.check_ship(ship, default_for)  # before the evaluation: it may take minutes
-    res = evaluate(model_path, data_dir, split, device, batch_size, out_dir, max_samples, progress)
+    res = evaluate(model_path, data_dir, split, device, batch_size, out_dir, max_samples, progress, force)
     if ship is None:
         return res
     with tempfile.TemporaryDirectory() as tmp:

@@ -7,6 +7,7 @@ confident output (largest count probability).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -14,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from spare_twin.config import MAX_MOVING_LINKS, MIN_MOVING_LINKS
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.models import decode, model_inputs
@@ -78,6 +80,38 @@ def _floats(values) -> tuple[float, ...]:
     return tuple(float(v) for v in values)
 
 
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def check_options(
+    frame: int | None = None,
+    print_scale: float | None = None,
+    n_links: int | None = None,
+    yaw_hypotheses: int = 4,
+    device: str = "cpu",
+) -> None:
+    """`predict_recording`'s options are usable; else an error naming the parameter. Checked before the
+    model and the recording are read, so a typo costs no registration."""
+    if frame is not None and (not _is_int(frame) or frame < 0):
+        raise SpareTwinError(f"frame {frame!r}: must be a frame index, 0 or more")
+    if print_scale is not None and (
+        isinstance(print_scale, bool)
+        or not isinstance(print_scale, (int, float))
+        or not math.isfinite(print_scale)
+        or print_scale <= 0
+    ):
+        raise SpareTwinError(f"print_scale {print_scale!r}: must be a positive number (physical m per paper m)")
+    if n_links is not None and (not _is_int(n_links) or not MIN_MOVING_LINKS <= n_links <= MAX_MOVING_LINKS):
+        raise SpareTwinError(f"n_links {n_links!r}: must be {MIN_MOVING_LINKS}..{MAX_MOVING_LINKS} moving links")
+    if yaw_hypotheses not in (1, 2, 4) or isinstance(yaw_hypotheses, bool):
+        raise SpareTwinError(f"yaw_hypotheses {yaw_hypotheses!r}: must be 1, 2 or 4")
+    if device not in ("cpu", "cuda"):
+        raise SpareTwinError(f"device {device!r}: must be cpu or cuda")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise SpareTwinError("device cuda: no CUDA device is available here; use cpu")
+
+
 def predict_recording(
     rec_dir: str | Path,
     model_path: str | Path | None = None,
@@ -94,6 +128,7 @@ def predict_recording(
     """The network's prediction for a recording (see `observe_recording` for `frame`, `camera`,
     `print_scale`, `yaw_hypotheses`, `T_world_base` and `camera_poses`); `n_links` is the known count
     a lengths-only model needs. The prediction carries the views the network saw (`network_input`)."""
+    check_options(frame, print_scale, n_links, yaw_hypotheses, device)
     model_path = model_path or ckpt.default_model("predict")
     model, net, ck = ckpt.load_model(model_path, device)
     seen = observe_recording(

@@ -166,22 +166,44 @@ def _epoch_loader(train_src, data_dir, net, tr: TrainConfig, epoch: int, on_the_
     return loader, len(loader)
 
 
-def _start(preset: Preset, data_dir, out_dir: Path, resume: bool, group: Group) -> dict | None:
-    """Rank 0 checks the run folder and reads last.pt (on resume); every rank gets the state (or the error)."""
+#: What a run folder holds (and the temporaries of their atomic writes): a folder of these is a run.
+RUN_FILES = ("last.pt", "best.pt", "model.pt", "history.json", "learning_curve.png", "MODEL_CARD.md")
+
+
+def _run_folder_problem(out_dir: Path, data_dir, resume: bool) -> str | None:
     last_path = out_dir / "last.pt"
+    out, data = out_dir.resolve(), Path(data_dir).resolve()
+    if out == data or data in out.parents or out in data.parents:
+        return f"out_dir {out_dir}: is, is inside or holds the data folder {data_dir}; write the run elsewhere"
+    if resume:
+        return None if last_path.is_file() else f"resume: {last_path} does not exist (nothing to resume)"
+    if last_path.exists():
+        return f"out_dir {out_dir}: already holds a run (resume it, or write to another folder)"
+    if out_dir.exists() and not out_dir.is_dir():
+        return f"out_dir {out_dir}: exists and is not a folder"
+    if out_dir.is_dir():
+        other = [p.name for p in out_dir.iterdir() if not p.name.lstrip(".").startswith(RUN_FILES)]
+        if other:
+            return f"out_dir {out_dir}: not empty and not a training run (holds {other[0]}); write to a new folder"
+    return None
+
+
+def _start(data_dir, out_dir: Path, resume: bool, group: Group) -> dict | None:
+    """Rank 0 checks the run folder, creates it or reads last.pt (on resume); every rank gets the state or
+    the error."""
     error, state = None, None
     if group.is_main:
-        if resume and not last_path.is_file():
-            error = f"resume: {last_path} does not exist (nothing to resume)"
-        elif not resume and last_path.exists():
-            error = f"out_dir {out_dir}: already holds a run (resume it, or write to another folder)"
-        elif resume:
+        error = _run_folder_problem(out_dir, data_dir, resume)
+        if error is None and resume:
             try:
-                state = ckpt.load(last_path, "cpu")
+                state = ckpt.load(out_dir / "last.pt", "cpu")
             except SpareTwinError as exc:
                 error = str(exc)
-        else:
-            out_dir.mkdir(parents=True, exist_ok=True)
+        elif error is None:
+            try:
+                out_dir.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                error = f"out_dir {out_dir}: cannot create it ({exc.strerror or exc})"
     group.raise_together(error)
     return group.broadcast(state)
 
@@ -211,11 +233,6 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
     if tr.threads:
         torch.set_num_threads(tr.threads)
     last_path = out_dir / "last.pt"
-    state = _start(preset, data_dir, out_dir, resume, group)
-
-    torch.manual_seed(tr.seed)
-    np.random.seed(tr.seed)
-    model = build_model(net).to(dev)
     train_src = open_split(data_dir, "train", net, augment=tr)  # with on_the_fly: only its size is used
     val_ds = None
     if main:
@@ -223,6 +240,11 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
             val_ds = open_split(data_dir, "val", net)
         except SpareTwinError:
             val_ds = None  # a folder without a validation split: select on the training loss instead
+    state = _start(data_dir, out_dir, resume, group)
+
+    torch.manual_seed(tr.seed)
+    np.random.seed(tr.seed)
+    model = build_model(net).to(dev)
     opt = torch.optim.AdamW(model.parameters(), lr=tr.lr, weight_decay=tr.weight_decay)
     meta = ckpt.new_meta(data_dir, dataset_rig(data_dir), tr.seed, command)
     meta["parameters"] = int(sum(p.numel() for p in model.parameters()))
@@ -300,7 +322,7 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
             bar.update(1)
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
         bar.close()
-        if group.active:
+        if group.world_size > 1:
             total, count = group.sum(sum(losses), len(losses))
             train_loss = total / count if count else None
         else:

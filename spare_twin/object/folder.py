@@ -12,14 +12,16 @@ preview.png          the assembled object at a random pose, rendered from the UR
 from __future__ import annotations
 
 import dataclasses
+import io
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import trimesh
 
 from spare_twin.config import ChainSpec, design_walls_mm, sample_chain
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import atomic_dir, encode_png, read_json, write_bytes_atomic, write_json_atomic
+from spare_twin.io import encode_png, read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.object import checks, kinematics
 from spare_twin.object.kinematics import joint_limits_rad, joint_origin, keepout_height_m
 from spare_twin.object.parts import (
@@ -32,6 +34,7 @@ from spare_twin.object.parts import (
 from spare_twin.object.preview import render_preview
 from spare_twin.object.stl import stl_bytes, to_trimesh
 from spare_twin.object.urdf import build_robot, joint_name, link_name, urdf_bytes
+from spare_twin.output import writing
 
 OBJECT_FORMAT = "spare-twin-object/1"
 
@@ -118,14 +121,23 @@ def build_sim_twin(spec: ChainSpec, folder: str | Path, circle_segments: int = S
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     _write_parts_and_urdf(spec, folder, circle_segments)
-    return load_object(folder)
+    return load_object(folder, verify_meshes=False)  # just written from the solids: nothing to doubt
 
 
-def build_object(spec: ChainSpec, out_dir: str | Path, preview: bool = True, progress=None) -> ObjectFolder:
-    """Write the whole object folder atomically: on any error `out_dir` is left as it was."""
+def build_object(
+    spec: ChainSpec,
+    out_dir: str | Path,
+    preview: bool = True,
+    progress=None,
+    force: bool = False,
+    inputs: tuple[str | Path | None, ...] = (),
+) -> ObjectFolder:
+    """Write the whole object folder under the output rule (`spare_twin.output.writing`): `out_dir` must be
+    absent, empty or an earlier object folder (`force` replaces anything else but `inputs`, the files the
+    spec was read from); on any error it is left as it was."""
     out_dir = Path(out_dir)
     step = progress or (lambda what: None)
-    with atomic_dir(out_dir) as tmp:
+    with writing(out_dir, "object", inputs=inputs, force=force) as tmp:
         step(BUILD_STEPS[0])
         parts, meshes, files = _write_parts_and_urdf(spec, tmp, CIRCLE_SEGMENTS)
         step(BUILD_STEPS[1])
@@ -207,12 +219,14 @@ def make_object(
     name: str | None = None,
     preview: bool = True,
     progress=None,
+    force: bool = False,
 ) -> ObjectSummary:
     """`spare-twin object`: the chain of `object_spec` built into `out_dir` (`build_object`), summarised."""
     spec = object_spec(n_links, seed, config, print_scale, clearance_mm, bed_mm, name)
-    obj = build_object(spec, out_dir, preview=preview, progress=progress)
+    obj = build_object(spec, out_dir, preview=preview, progress=progress, force=force, inputs=(config,))
     report = read_json(obj.root / "print_report.json")
-    files = tuple(sorted(p.name for p in obj.root.iterdir() if p.is_file()))
+    # hidden files (the output rule's marker) are bookkeeping, not part of what was made
+    files = tuple(sorted(p.name for p in obj.root.iterdir() if p.is_file() and not p.name.startswith(".")))
     return ObjectSummary(obj, bool(report["passed"]), files)
 
 
@@ -221,7 +235,9 @@ BUILD_STEPS = ("modelling parts", "writing STL files", "checking printability", 
 PREVIEW_STEP = "rendering preview"
 
 
-def load_object(root: str | Path) -> ObjectFolder:
+def load_object(root: str | Path, verify_meshes: bool = True) -> ObjectFolder:
+    """The object folder at `root`, its meshes verified (`verify_meshes`) before anything uses them:
+    a truncated or swapped STL would otherwise render or compare as a wrong object without a word."""
     root = Path(root)
     if not root.is_dir():
         raise SpareTwinError(f"{root}: not a folder")
@@ -229,17 +245,84 @@ def load_object(root: str | Path) -> ObjectFolder:
     if not meta_path.is_file():
         raise SpareTwinError(f"{root}: not an object folder (no object.json)")
     meta = read_json(meta_path)
-    if meta.get("format") != OBJECT_FORMAT:
+    if not isinstance(meta, dict) or meta.get("format") != OBJECT_FORMAT:
         raise SpareTwinError(f"{meta_path}: not a {OBJECT_FORMAT} file")
     spec = ChainSpec.from_dict(meta, source=str(meta_path))
     urdf_path = root / f"{spec.name}.urdf"
     if not urdf_path.is_file():
         raise SpareTwinError(f"{urdf_path}: missing")
-    for k in range(spec.n_links + 1):
-        stl = root / ("link0_base.stl" if k == 0 else f"link{k}.stl")
-        if not stl.is_file():
-            raise SpareTwinError(f"{stl}: missing")
+    links = ["link0_base.stl"] + [f"link{k}.stl" for k in range(1, spec.n_links + 1)]
+    for name in links:
+        if not (root / name).is_file():
+            raise SpareTwinError(f"{root / name}: missing")
+    if verify_meshes:
+        verify_meshes_against_report(root, links)
     return ObjectFolder(root=root, spec=spec, urdf_path=urdf_path)
+
+
+#: How far a part's mesh may be from what print_report.json measured (STL stores float32 coordinates).
+BBOX_TOLERANCE_MM = 0.01
+VOLUME_TOLERANCE = 1e-3
+
+
+def verify_meshes_against_report(root: Path, links: list[str]) -> None:
+    """Every part's STL loads, is watertight and is the part print_report.json describes (its bounding
+    box and volume); without a report (a folder built by hand), the link meshes load and are watertight."""
+    report_path = root / "print_report.json"
+    expected: dict[str, dict] = {name: {} for name in links}
+    if report_path.is_file():
+        report = read_json(report_path)
+        try:
+            expected = {e["file"]: e for e in report["parts"] if isinstance(e["file"], str)}
+            for e in expected.values():
+                e["bbox_mm"], e["volume_mm3"] = [float(x) for x in e["bbox_mm"]], float(e["volume_mm3"])
+        except (KeyError, TypeError, ValueError):
+            raise SpareTwinError(f"{report_path}: not a print report (parts with file, bbox_mm, volume_mm3)") from None
+        for name in links:
+            if name not in expected:
+                raise SpareTwinError(f"{report_path}: does not list {name}")
+    for name, entry in expected.items():
+        _verify_mesh(root / name, entry)
+
+
+def _verify_mesh(path: Path, entry: dict) -> None:
+    mesh = _load_stl(path)
+    if not mesh.is_watertight:
+        raise SpareTwinError(f"{path}: the mesh is not watertight (damaged or edited?)")
+    if not entry:
+        return
+    size = mesh.bounds[1] - mesh.bounds[0]
+    want = np.asarray(entry["bbox_mm"])
+    if size.shape != want.shape or np.abs(size - want).max() > BBOX_TOLERANCE_MM:
+        shown = " x ".join(f"{x:.1f}" for x in size)
+        raise SpareTwinError(
+            f"{path}: a {shown} mm part, not the {' x '.join(f'{x:.1f}' for x in want)} mm one print_report.json "
+            "lists under this name (another part's file?)"
+        )
+    if abs(mesh.volume - entry["volume_mm3"]) > VOLUME_TOLERANCE * abs(entry["volume_mm3"]):
+        raise SpareTwinError(
+            f"{path}: volume {mesh.volume:.1f} mm^3, not the {entry['volume_mm3']:.1f} mm^3 print_report.json "
+            "lists (another part's file?)"
+        )
+
+
+def _load_stl(path: Path) -> trimesh.Trimesh:
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise SpareTwinError(f"{path}: cannot read ({exc.strerror})") from None
+    # a binary STL says how many triangles follow: a file cut short is caught here, whatever a reader makes of it
+    count = int.from_bytes(data[80:84], "little") if len(data) >= 84 else -1
+    binary = not data.lstrip().startswith(b"solid") or len(data) == 84 + 50 * count
+    if binary and len(data) != 84 + 50 * count:
+        raise SpareTwinError(f"{path}: not a whole STL file ({len(data)} bytes; truncated or empty?)")
+    try:
+        mesh = trimesh.load(io.BytesIO(data), file_type="stl", force="mesh")
+    except Exception as exc:  # trimesh raises what its parsers raise; any of it means "not a mesh we can use"
+        raise SpareTwinError(f"{path}: not a readable STL ({type(exc).__name__})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise SpareTwinError(f"{path}: not a readable STL (no triangles)")
+    return mesh
 
 
 def print_report(spec, parts, meshes, files, coupon) -> dict:

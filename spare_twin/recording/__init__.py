@@ -24,8 +24,10 @@ configuration, or null), ``rig`` (name of the training rig the cameras are, or n
 `capture calibrate`) are added by in-place updates. A registration keeps the poses a camera had
 before as ``cameras/<cam>/T_world_camera.reference.npy``.
 
-Every camera has a picture for every frame. Writers build the folder under a temporary name and
-rename it into place, so an existing recording is never half-overwritten.
+Every camera has a picture for every frame. Writers go through the output rule
+(`spare_twin.output.writing`): the folder is built under a temporary name and swapped into place, so an
+existing recording is never half-overwritten, and a new one never replaces what is not an earlier output
+of the same command (unless forced). `Recording.open` checks every key's type and range, one-line errors.
 
 This package is the only code that knows the layout: `format` (constants, `Camera`, `Registration`,
 byte encodings), `reader` (`Recording`), `writer` (`RecordingWriter`, `update_recording`).

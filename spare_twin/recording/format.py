@@ -4,6 +4,7 @@ result and the byte encodings every writer shares (see the package doc for the l
 from __future__ import annotations
 
 import io
+import json
 import zipfile
 from dataclasses import dataclass
 from typing import Any
@@ -53,18 +54,32 @@ class Camera:
 
     @classmethod
     def from_dict(cls, d: dict, source: str) -> Camera:
+        if not isinstance(d, dict):
+            raise SpareTwinError(f"{source}: bad camera entry (expected an object, got {type(d).__name__})")
+        for key in ("name", "width", "height", "K"):
+            if key not in d:
+                raise SpareTwinError(f"{source}: bad camera entry (missing key {key})")
+        name = d["name"]
+        # the name is a folder under cameras/: a plain, visible name
+        if not isinstance(name, str) or not name or name.startswith(".") or "/" in name or "\\" in name:
+            raise SpareTwinError(f"{source}: camera name {json.dumps(name)[:40]}: must be a plain folder name")
+        for key in ("width", "height"):
+            if type(d[key]) is not int or not 0 < d[key] < 2**31:
+                raise SpareTwinError(f"{source}: camera {name}: {key} {json.dumps(d[key])[:40]}: must be a pixel count")
+        poses = d.get("poses", "fixed")
+        if poses not in POSES:
+            raise SpareTwinError(f"{source}: camera {name}: poses must be fixed, per_frame or unknown")
         try:
             K = np.asarray(d["K"], dtype=np.float64)
             T = d.get("T_world_camera")
             T = None if T is None else np.asarray(T, dtype=np.float64)
-            cam = cls(str(d["name"]), int(d["width"]), int(d["height"]), K, T, str(d.get("poses", "fixed")))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise SpareTwinError(f"{source}: bad camera entry ({exc})") from None
-        if cam.K.shape != (3, 3) or (cam.T_world_camera is not None and cam.T_world_camera.shape != (4, 4)):
-            raise SpareTwinError(f"{source}: camera {cam.name}: K must be 3x3 and T_world_camera 4x4")
-        if cam.poses not in POSES:
-            raise SpareTwinError(f"{source}: camera {cam.name}: poses must be fixed, per_frame or unknown")
-        return cam
+        except (TypeError, ValueError, OverflowError) as exc:
+            raise SpareTwinError(f"{source}: camera {name}: bad K or T_world_camera ({exc})") from None
+        if K.shape != (3, 3) or (T is not None and T.shape != (4, 4)):
+            raise SpareTwinError(f"{source}: camera {name}: K must be 3x3 and T_world_camera 4x4")
+        if not np.isfinite(K).all() or (T is not None and not np.isfinite(T).all()):
+            raise SpareTwinError(f"{source}: camera {name}: K and T_world_camera must be finite")
+        return cls(name, d["width"], d["height"], K, T, poses)
 
 
 @dataclass(frozen=True)

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import json
+import math
+import pickle
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,26 +45,24 @@ class Recording:
             meta = json.loads(meta_path.read_text())
         except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             raise SpareTwinError(f"{meta_path}: not valid JSON ({exc})") from None
-        if meta.get("format") != FORMAT:
-            raise SpareTwinError(f"{meta_path}: not a {FORMAT} file")
-        if meta.get("version") != VERSION:
-            raise SpareTwinError(f"{meta_path}: unsupported version {meta.get('version')}")
-        for key in ("frames", "fps", "depth_scale", "cameras"):
-            if key not in meta:
-                raise SpareTwinError(f"{meta_path}: missing key {key}")
+        except OSError as exc:
+            raise SpareTwinError(f"{meta_path}: cannot be read ({exc.strerror})") from None
+        _check_meta(meta, meta_path)
         cameras = [Camera.from_dict(c, str(meta_path)) for c in meta["cameras"]]
-        if not cameras:
-            raise SpareTwinError(f"{meta_path}: no cameras")
+        names = [c.name for c in cameras]
+        if len(set(names)) != len(names):
+            raise SpareTwinError(f"{meta_path}: cameras: camera names must be unique, got {names}")
         rec = cls(root, meta, cameras)
+        if meta.get("registration"):
+            reg = Registration.from_dict(meta["registration"], str(meta_path))
+            if reg.camera not in names:
+                raise SpareTwinError(f"{meta_path}: registration: no camera named {reg.camera!r}")
         for cam in cameras:
             if cam.poses == "per_frame":
                 p = root / "cameras" / cam.name / "T_world_camera.npy"
                 if not p.is_file():
                     raise SpareTwinError(f"{p}: missing (camera {cam.name} has per-frame poses)")
-                poses = np.load(p)
-                if poses.shape != (rec.n_frames, 4, 4):
-                    raise SpareTwinError(f"{p}: expected shape ({rec.n_frames}, 4, 4), got {poses.shape}")
-                rec._poses[cam.name] = poses
+                rec._poses[cam.name] = _load_poses(p, rec.n_frames)
         return rec
 
     # -- metadata ------------------------------------------------------------------------
@@ -142,7 +143,12 @@ class Recording:
         """uint8 (H, W): 0 background, k = link k - 1; None when the recording has none."""
         if not self.path(cam, "segmentation", frame).is_file():
             return None
-        return self._checked(cam, "segmentation", frame)
+        img = self._checked(cam, "segmentation", frame)
+        if img.dtype != np.uint8 or img.ndim != 2:
+            raise SpareTwinError(
+                f"{self.path(cam, 'segmentation', frame)}: segmentation must be a single-channel 8-bit PNG"
+            )
+        return img
 
     def depth_raw(self, cam: str, frame: int) -> np.ndarray:
         """uint16 (H, W) depth as stored: metres = value * depth_scale, 0 = no reading."""
@@ -165,7 +171,7 @@ class Recording:
         replaced them (it keeps them as cameras/<cam>/T_world_camera.reference.npy); None when unknown."""
         p = self.root / "cameras" / cam / REFERENCE_POSES
         if p.is_file():
-            return np.load(p)
+            return _load_poses(p, self.n_frames)
         if self.registration is not None:
             return None
         return self.camera_poses(cam)
@@ -180,8 +186,11 @@ class Recording:
         p = self.root / "ground_truth.npz"
         if not p.is_file():
             return None
-        with np.load(p) as z:
-            return {k: z[k] for k in z.files}
+        try:
+            with np.load(p, allow_pickle=False) as z:
+                return {k: z[k] for k in z.files}
+        except (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
+            raise SpareTwinError(f"{p}: not a readable .npz file ({_one_line(exc)})") from None
 
     def write_ground_truth(self, arrays: dict[str, np.ndarray]) -> None:
         """Replace the recording's ground_truth.npz atomically (an importer keeps what is known of the object)."""
@@ -192,6 +201,8 @@ class Recording:
             raise SpareTwinError(f"{self.root}: frame {frame} out of range 0..{self.n_frames - 1}")
         c = self.camera(cam)
         path = self.path(cam, kind, frame)
+        if path.is_file() and path.stat().st_size == 0:  # OpenCV would log a warning of its own as well
+            raise SpareTwinError(f"{path}: empty file (0 bytes), not an image")
         img = read_png(path)
         if img.shape[:2] != (c.height, c.width):
             raise SpareTwinError(
@@ -205,9 +216,74 @@ class Recording:
             for kind in ("color", "depth"):
                 folder = self.root / "cameras" / cam.name / kind
                 have = sorted(p.name for p in folder.glob("*.png")) if folder.is_dir() else []
-                want = [frame_file_name(i) for i in range(self.n_frames)]
+                if len(have) > self.n_frames:
+                    raise SpareTwinError(f"{self.root}: {folder} holds {len(have)} pictures for {self.n_frames} frames")
+                # same count: listing the expected names is cheap (a huge `frames` stops above or here)
+                want = [frame_file_name(i) for i in range(min(self.n_frames, len(have) + 1))]
                 if have != want:
                     missing = sorted(set(want) - set(have))
                     extra = sorted(set(have) - set(want))
                     what = f"missing {folder / missing[0]}" if missing else f"unexpected {folder / extra[0]}"
                     raise SpareTwinError(f"{self.root}: {what}")
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _check_meta(meta, meta_path: Path) -> None:
+    """recording.json's keys have the types and ranges the format says (one-line errors naming the key)."""
+    if not isinstance(meta, dict):
+        raise SpareTwinError(f"{meta_path}: expected a JSON object, got {type(meta).__name__}")
+    if meta.get("format") != FORMAT:
+        raise SpareTwinError(f"{meta_path}: not a {FORMAT} file")
+    version = meta.get("version")
+    if type(version) is not int or version != VERSION:
+        raise SpareTwinError(f"{meta_path}: unsupported version {version!r}")
+    for key in ("frames", "fps", "depth_scale", "cameras"):
+        if key not in meta:
+            raise SpareTwinError(f"{meta_path}: missing key {key}")
+
+    def bad(key: str, want: str) -> SpareTwinError:
+        return SpareTwinError(f"{meta_path}: {key} {json.dumps(meta[key])[:40]}: must be {want}")
+
+    frames = meta["frames"]
+    if type(frames) is not int or frames < 1:
+        raise bad("frames", "a whole number of frames, at least 1")
+    if not _number(meta["fps"]) or meta["fps"] <= 0:
+        raise bad("fps", "a positive number")
+    if not _number(meta["depth_scale"]) or not 0 < meta["depth_scale"] <= 1:
+        raise bad("depth_scale", "metres per depth unit, a number in (0, 1]")
+    ts = meta.get("timestamps_s")
+    if ts is not None and (not isinstance(ts, list) or len(ts) != frames or not all(_number(t) for t in ts)):
+        raise bad("timestamps_s", f"null or a list of {frames} finite numbers (one per frame)")
+    for key, kind, want in (
+        ("source", dict, "an object"),
+        ("object", dict, "an object or null"),
+        ("rig", str, "a rig name or null"),
+        ("registration", dict, "an object or null"),
+    ):
+        if meta.get(key) is not None and not isinstance(meta[key], kind):
+            raise bad(key, want)
+    if not isinstance(meta["cameras"], list) or not meta["cameras"]:
+        raise bad("cameras", "a non-empty list of camera entries")
+
+
+def _load_poses(p: Path, frames: int) -> np.ndarray:
+    """A (frames, 4, 4) array of finite camera-to-world poses from `p` (the writer refuses any other)."""
+    try:
+        poses = np.load(p, allow_pickle=False)
+    except (OSError, ValueError, EOFError, pickle.UnpicklingError) as exc:
+        raise SpareTwinError(f"{p}: not a readable .npy file ({_one_line(exc)})") from None
+    if not isinstance(poses, np.ndarray) or poses.dtype.kind not in "fiu":
+        raise SpareTwinError(f"{p}: expected a numeric array of poses")
+    if poses.shape != (frames, 4, 4):
+        raise SpareTwinError(f"{p}: expected shape ({frames}, 4, 4), got {poses.shape}")
+    poses = poses.astype(np.float64)
+    if not np.isfinite(poses).all():
+        raise SpareTwinError(f"{p}: poses must be finite (NaN or infinity found)")
+    return poses

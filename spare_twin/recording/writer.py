@@ -2,9 +2,10 @@
 ends) and an atomic update of an existing one (`update_recording`: registration results, calibrated
 poses).
 
-Both build the new folder under a temporary sibling name and rename it into place
-(`spare_twin.io.atomic_dir`), so a failure or Ctrl-C at any point leaves what was at the destination
-exactly as it was.
+Both go through the one output rule (`spare_twin.output.writing`): the new folder is built under a
+hidden temporary sibling and swapped into place when complete, so a failure, Ctrl-C or SIGKILL at any
+point leaves what was at the destination exactly as it was (a killed run's temporary is removed by the
+next run). A new recording refuses to replace anything but an earlier output of the same command.
 """
 
 from __future__ import annotations
@@ -12,12 +13,14 @@ from __future__ import annotations
 import json
 import os
 import shutil
+from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import atomic_dir, encode_png, write_bytes_atomic
+from spare_twin.io import encode_png, write_bytes_atomic
+from spare_twin.output import output_command, writing
 from spare_twin.recording.format import (
     FORMAT,
     SIM_DEPTH_SCALE,
@@ -38,7 +41,10 @@ def _json_bytes(meta: dict) -> bytes:
 class RecordingWriter:
     """Writes a recording under a temporary name; leaving the `with` block renames it into place.
 
-    Use as a context manager: on an exception nothing at `root` changes.
+    Use as a context manager: on an exception nothing at `root` changes. `kind` is the command whose
+    output this is (written in the output marker: "render", "capture import"); `inputs` are the files
+    and folders it is made from (the recording may not be one, lie inside one or contain one), and
+    `force` lets it replace a folder that is not an earlier output of `kind` (see `spare_twin.output`).
 
     With `n_frames` None the recording is a stream of unknown length (a live sensor, a .bag replay)
     from one camera without per-frame poses: `append` adds the next frame, and the frame count and
@@ -58,6 +64,9 @@ class RecordingWriter:
         rig: str | None = None,
         timestamps_s: list[float] | None = None,
         png_compression: int = 1,
+        kind: str = "recording",
+        inputs: Iterable[str | Path | None] = (),
+        force: bool = False,
     ):
         names = [c.name for c in cameras]
         if len(set(names)) != len(names) or not names:
@@ -91,7 +100,7 @@ class RecordingWriter:
             "rig": rig,
             "cameras": [c.to_dict() for c in cameras],
         }
-        self._ctx = atomic_dir(self.root)
+        self._ctx = writing(self.root, kind, inputs=tuple(inputs), force=force)
         self._tmp: Path | None = None
 
     def __enter__(self) -> RecordingWriter:
@@ -207,7 +216,8 @@ def update_recording(root: str | Path, meta: dict, files: dict[str, bytes], remo
     """
     root = Path(root)
     Recording.open(root)  # a clear error if it is not a recording at all
-    with atomic_dir(root) as tmp:
+    # the same command's output again (its marker kept), so the swap keeps what produced it
+    with writing(root, output_command(root) or "recording", force=True) as tmp:
         _link_tree(root, tmp, skip={"recording.json", *files, *remove})
         for rel, data in files.items():
             write_bytes_atomic(tmp / rel, data)

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -102,9 +103,20 @@ class DepthNoise:
             raise SpareTwinError(f"{path}: expected a JSON object")
         d.pop("fit", None)
         known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise SpareTwinError(f"{path}: unknown key(s) {', '.join(unknown)}")
+        unknown = sorted(str(k) for k in set(d) - known)
+        problems = [f"unknown key(s) {', '.join(unknown)}"] if unknown else []
+        for k, v in d.items():  # a wrong value would only show later, as a numpy error in the middle of a render
+            if k == "sensor":
+                ok = isinstance(v, str)
+            elif k in known:
+                ok = isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v >= 0
+                ok = ok and (v <= 1 if k.endswith("_prob") else v > 0 if k in ("unit_m", "ref_width_px") else True)
+            else:
+                continue
+            if not ok:
+                problems.append(f"{k}: {json.dumps(v)[:40]} is not a valid value")
+        if problems:
+            raise SpareTwinError(f"{path}: {'; '.join(problems)}")
         return cls(**d)
 
 
@@ -258,14 +270,14 @@ def fit_noise_models(
     if not sources:
         raise SpareTwinError("sources: no folder of real depth frames given")
     sources = [Path(s) for s in sources]
-    check_output(out_dir, NOISE_FIT, sources, force)  # refuse before the fitting, not after
-    fits: dict[str, tuple[Path, DepthNoise, dict]] = {}
-    for src in sources:
+    loaded: dict[str, tuple[Path, list[np.ndarray], float]] = {}
+    for src in sources:  # the inputs are read and checked first, then the output path, then the fitting
         depths, unit, sensor = load_real_depths(src)
-        if sensor in fits:
-            raise SpareTwinError(f"{src}: a second {sensor} source (one noise model per sensor; {fits[sensor][0]})")
-        model, report = fit_depth_noise(depths, unit, sensor)
-        fits[sensor] = (src, model, report)
+        if sensor in loaded:
+            raise SpareTwinError(f"{src}: a second {sensor} source (one noise model per sensor; {loaded[sensor][0]})")
+        loaded[sensor] = (src, depths, unit)
+    check_output(out_dir, NOISE_FIT, sources, force)
+    fits = {sensor: (src, *fit_depth_noise(depths, unit, sensor)) for sensor, (src, depths, unit) in loaded.items()}
     out = Path(out_dir)
     written = []
     with writing(out, NOISE_FIT, sources, force) as tmp:

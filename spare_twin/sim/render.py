@@ -105,9 +105,17 @@ def parse_resolution(text: str, rig: Rig) -> tuple[int, int]:
 
 
 def render_recording(
-    object_dir: str | Path, out: str | Path, cfg: RenderConfig = RenderConfig(), progress: bool = True
+    object_dir: str | Path,
+    out: str | Path,
+    cfg: RenderConfig = RenderConfig(),
+    progress: bool = True,
+    force: bool = False,
 ) -> RenderResult:
-    """Load the object's URDF in pybullet, move its joints and record every camera into `out`."""
+    """Load the object's URDF in pybullet, move its joints and record every camera into `out`.
+
+    Everything is checked (the configuration, the object's meshes, the rig, the noise model, then the
+    output path) before anything is written. `out` must be absent, empty or an earlier render; `force`
+    replaces anything else, but never the object folder or a folder around it or inside it."""
     cfg.validate()
     obj = load_object(object_dir)
     rig = load_rig(cfg.rig)
@@ -145,9 +153,10 @@ def render_recording(
     }
     link_poses = np.zeros((cfg.frames, obj.spec.n_links + 1, 4, 4))
     depth_scale = noise.unit_m if noise else SIM_DEPTH_SCALE  # the sensor's own unit, as a real capture stores it
+    # the rig and noise files read, when they are files (not names of shipped ones), are inputs too
+    inputs = [object_dir, *(p for p in (cfg.rig, cfg.noise) if Path(p).is_file())]
     with (
-        Twin() as twin,
-        RecordingWriter(
+        RecordingWriter(  # first: the output path is checked before pybullet starts
             out,
             cameras,
             cfg.frames,
@@ -156,7 +165,11 @@ def render_recording(
             depth_scale=depth_scale,
             object_config=obj.spec.to_dict(),
             rig=rig.name if cfg.path == "rig" else None,
+            kind="render",
+            inputs=inputs,
+            force=force,
         ) as rec,
+        Twin() as twin,
     ):
         twin.load(obj)
         for t in tqdm(
