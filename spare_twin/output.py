@@ -1,4 +1,4 @@
-"""The one output rule (DESIGN.md, "Outputs never destroy"), for every command that writes a folder or a file.
+"""The one output rule (README, "Outputs never destroy"), for every command that writes a folder or a file.
 
 A command writes to an output path only if that path is absent, an empty folder, or an earlier output of
 the same kind: a folder holding the marker file `MARKER` with the same command name (written by
@@ -140,7 +140,7 @@ def check_output(
         raise OutputRefused(shown, f"{ancestor} is a file, not a folder")
     if not os.access(ancestor, os.W_OK | os.X_OK):
         raise OutputRefused(shown, f"cannot write in {ancestor} (permission denied or read-only)")
-    busy = [pid for _, pid, _ in _temporaries(final) if pid != os.getpid() and _alive(pid)]
+    busy = [pid for _, pid, _ in _temporaries(final) if pid != os.getpid() and process_alive(pid)]
     if busy:
         raise OutputRefused(shown, f"another spare-twin process (pid {busy[0]}) is writing it")
     if not os.path.lexists(final):
@@ -179,7 +179,8 @@ def _problem(final: Path, kind: OutputKind) -> tuple[str | None, bool]:
 # -- temporaries -------------------------------------------------------------------------------------
 
 
-def _alive(pid: int) -> bool:
+def process_alive(pid: int) -> bool:
+    """Whether process `pid` runs (a zombie, killed but not reaped, does not): is a lock or temporary still owned?"""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -213,7 +214,7 @@ def _temporaries(final: Path) -> list[tuple[Path, int, str]]:
 
 def _stale(path: Path, pid: int) -> bool:
     # pids are reused: a temporary whose pid now belongs to another process waits for a later run
-    return path not in _ACTIVE if pid == os.getpid() else not _alive(pid)
+    return path not in _ACTIVE if pid == os.getpid() else not process_alive(pid)
 
 
 def _remove(path: Path) -> None:

@@ -35,7 +35,7 @@ from spare_twin.dataset.generate import GenConfig, _seeds, load_twin_object, seq
 from spare_twin.dataset.ray_backend import import_ray
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_bytes_atomic
-from spare_twin.sim.motion import random_motion
+from spare_twin.sim.motion import object_motion
 from spare_twin.sim.scene import sample_scene
 from spare_twin.sim.twin import Lighting, projection_matrix, view_matrix
 
@@ -101,11 +101,8 @@ def _raw_worker(job: tuple) -> tuple[int, float]:
             scene = sample_scene(rig, spec, cfg.randomization, np.random.default_rng(seeds["scene"]))
             obj = load_twin_object(cfg, spec, Path(work))
             twin.load(obj)
-            angles = random_motion(
-                obj.joint_limits_rad,
-                obj.link_lengths_m,
-                obj.keepout_height_m,
-                obj.link_half_width_m,
+            angles = object_motion(
+                obj,
                 np.random.default_rng(seeds["motion"]),
                 cfg.motion(),
             )

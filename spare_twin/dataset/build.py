@@ -28,6 +28,7 @@ from spare_twin.dataset.ray_backend import SHARDS, RaySession, run_ray
 from spare_twin.dataset.store import sequence_filename
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_json_atomic
+from spare_twin.output import process_alive
 
 DATASET_FORMAT = "spare-twin-dataset/1"
 
@@ -58,26 +59,13 @@ class _Lock:
                 pid = int(self.path.read_text().strip() or 0)
             except ValueError:
                 pid = 0
-            if pid and pid != os.getpid() and _alive(pid):
+            if pid and pid != os.getpid() and process_alive(pid):
                 raise SpareTwinError(f"{self.path.parent}: another spare-twin dataset (pid {pid}) is writing it")
         self.path.write_text(str(os.getpid()))
         return self
 
     def __exit__(self, *exc):
         self.path.unlink(missing_ok=True)
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:  # a zombie (killed, not yet reaped) is not a writer
-        return " Z " not in Path(f"/proc/{pid}/stat").read_text().split(")", 1)[1][:4]
-    except OSError:
-        return True
 
 
 def _check_settings(root: Path, seed: int, cfg: GenConfig, create: bool = True) -> None:

@@ -27,7 +27,7 @@ from spare_twin.config import MAX_MOVING_LINKS, ChainSpec, sample_chain
 from spare_twin.object.folder import SIM_CIRCLE_SEGMENTS, ObjectFolder, build_sim_twin
 from spare_twin.object.parts import CIRCLE_SEGMENTS
 from spare_twin.recording import SIM_DEPTH_SCALE
-from spare_twin.sim.motion import MotionConfig, random_motion
+from spare_twin.sim.motion import MotionConfig, object_motion
 from spare_twin.sim.rig import Rig
 from spare_twin.sim.scene import DomainRandomization, sample_scene
 from spare_twin.sim.twin import Twin, projection_matrix, view_matrix
@@ -166,17 +166,14 @@ def render_sequence(cfg: GenConfig, seed: int, index: int, twin: Twin, workdir: 
         shutil.rmtree(obj.root, ignore_errors=True)  # pybullet has read the URDF and meshes
     if scene.link_rgb is not None:
         for k, rgb in enumerate(scene.link_rgb):
-            twin.p.changeVisualShape(twin.body, twin._links[k], rgbaColor=list(rgb) + [1.0], physicsClientId=twin.cid)
+            twin.set_link_color(k, rgb)
     twin.set_table_color(scene.table_rgba)
     twin.clear_extras()
     for box in scene.clutter:
         twin.add_box(box["half_extents_m"], box["position_m"], box["rgba"], box["yaw_rad"])
 
-    angles = random_motion(
-        obj.joint_limits_rad,
-        obj.link_lengths_m,
-        obj.keepout_height_m,
-        obj.link_half_width_m,
+    angles = object_motion(
+        obj,
         np.random.default_rng(seeds["motion"]),
         cfg.motion(),
     )

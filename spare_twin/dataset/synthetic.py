@@ -1,8 +1,8 @@
 """A small analytic stand-in for the twin simulation: SPARE chains as capsules, ray-cast into an
-8-camera depth/grey rig. It yields exactly the docs/CONTRACTS.md sample dict, so the networks, training,
+8-camera depth/grey rig. It yields exactly the docs/design.md sample dict, so the networks, training,
 evaluation and prediction can be developed and tested without pybullet or a stored dataset.
 
-Geometry follows docs/CONTRACTS.md: world z up, table at z = 0, joints about +y, link k in its own layer
+Geometry follows docs/design.md: world z up, table at z = 0, joints about +y, link k in its own layer
 at y = k * 6.4 mm, link k's length along its own +z, physical size = paper length * print_scale.
 Every sample is a pure function of (seed, split, index).
 
@@ -164,7 +164,7 @@ def _rng(seed: int, split: str, index: int) -> np.random.Generator:
 
 
 def make_sample(spec: SyntheticSpec, split: str, index: int) -> dict[str, np.ndarray]:
-    """One CONTRACTS.md sample (numpy), a pure function of (spec.seed, split, index)."""
+    """One docs/design.md sample (numpy), a pure function of (spec.seed, split, index)."""
     rng = _rng(spec.seed, split, index)
     n = int(rng.integers(spec.n_range[0], spec.n_range[1] + 1))
     lengths = np.asarray(sample_lengths(n, rng))

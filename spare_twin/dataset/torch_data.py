@@ -1,6 +1,6 @@
 """Torch datasets for every input mode of the paper, from a stored dataset or rendered on the fly.
 
-Each item is the dict of docs/CONTRACTS.md ("Network sample"):
+Each item is the dict of docs/design.md ("Network sample"):
     x                 float32 (V, 96, 128) multi-view (8 views at one time step) or (T, 96, 128)
                       temporal (T frames of one camera); depth in metres (0 = no reading) or grey in [0, 1]
     n_links           int64 scalar, 1..6 (class index = n_links - 1)

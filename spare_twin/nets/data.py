@@ -1,5 +1,5 @@
 """Where the networks get their samples: the project's dataset (spare_twin.dataset) or a synthetic
-folder (synthetic.json, see dataset/synthetic.py). Both yield the docs/CONTRACTS.md sample dict.
+folder (synthetic.json, see dataset/synthetic.py). Both yield the docs/design.md sample dict.
 
 Stored data: ``spare_twin.dataset.torch_data.SpareDataset`` (manifest.json + HDF5 sequences).
 On the fly: ``spare_twin.dataset.torch_data.OnTheFlyDataset`` with the stored dataset's generator

@@ -19,8 +19,9 @@ from spare_twin.io import write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.data import open_split
+from spare_twin.nets.distributed import pick_device
 from spare_twin.nets.plots import write_confusion_png
-from spare_twin.nets.train import pick_device, run_inference, summarize
+from spare_twin.nets.train import run_inference, summarize
 from spare_twin.output import writing
 
 #: The output kind of `out_dir` (`spare_twin.output`).
@@ -29,7 +30,7 @@ EVALUATE = "evaluate"
 
 @dataclass(frozen=True)
 class Evaluation:
-    """A checkpoint's metrics on one split (E_L in paper units, DESIGN's `evaluate` keys first)."""
+    """A checkpoint's metrics on one split (E_L in paper units; the `evaluate --json` keys first)."""
 
     count_accuracy: float | None
     """None for a lengths-only model."""

@@ -1,7 +1,7 @@
 """The networks: the paper's Conv3D and CNN-LSTM baselines, the per-count length regressors and their
 naive combination, the end-to-end regressor, and the geometry-aware voxel-fusion network.
 
-Every network takes the docs/CONTRACTS.md sample fields as keyword tensors and returns a dict with any of
+Every network takes the docs/design.md sample fields as keyword tensors and returns a dict with any of
 ``count_logits`` (B, 6), ``lengths`` (B, 7, paper units) and ``angles`` (B, 6, rad). `decode` turns
 those into predictions with the paper's rules (see metrics.py).
 """
@@ -247,7 +247,7 @@ def input_norms(model: nn.Module) -> list[InputNorm]:
 
 
 def model_inputs(batch: dict, device) -> dict:
-    """The tensors a network reads from a docs/CONTRACTS.md batch, on `device`."""
+    """The tensors a network reads from a docs/design.md batch, on `device`."""
     out = {"x": batch["x"].to(device, torch.float32)}
     for k in ("K", "T_world_camera", "print_scale"):
         if k in batch:

@@ -67,7 +67,7 @@ def input_spec(net: NetConfig) -> InputSpec:
 
 
 def to_batch(inputs: Sequence[NetworkInput]) -> dict:
-    """A batch in the docs/CONTRACTS.md layout, one row per input."""
+    """A batch in the docs/design.md layout, one row per input."""
     return {
         "x": torch.as_tensor(np.stack([i.x for i in inputs]), dtype=torch.float32),
         "K": torch.as_tensor(np.stack([i.K for i in inputs]), dtype=torch.float32),

@@ -26,7 +26,7 @@ class GridConfig:
 
     Extents are in paper units (world metres / print_scale), so the grid follows the object's scale
     and a length read off it is already in the unit E_L is measured in. World frame: z up, table at
-    z = 0, the base's joint axes along +y (docs/CONTRACTS.md), so the planar chain moves in x-z.
+    z = 0, the base's joint axes along +y (docs/design.md), so the planar chain moves in x-z.
     """
 
     x_range: tuple[float, float] = (-1.9, 1.9)

@@ -32,7 +32,7 @@ from spare_twin.io import write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.data import dataset_rig, open_on_the_fly, open_split
-from spare_twin.nets.distributed import Group, pick_device, session  # noqa: F401  (pick_device: evaluate imports it here)
+from spare_twin.nets.distributed import Group, session
 from spare_twin.nets.models import build_model, decode, input_norms, model_inputs
 from spare_twin.nets.presets import NetConfig, Preset, TrainConfig
 

@@ -48,7 +48,7 @@ class InputSpec:
 
 @dataclass(frozen=True)
 class NetworkInput:
-    """One sample in the layout of docs/CONTRACTS.md ("Network sample"), without the batch axis."""
+    """One sample in the layout of docs/design.md ("Network sample"), without the batch axis."""
 
     x: np.ndarray
     """float32 (V, H, W): depth in metres (0 = no reading) or grey in [0, 1]."""

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
+from spare_twin.object.folder import ObjectFolder
 from spare_twin.object.kinematics import plate_lowest_point_m as lowest_point_m
 
 
@@ -83,3 +84,10 @@ def random_motion(
     if (lowest_point_m(angles, lengths, half_width_m) < keepout_height_m).any():
         raise AssertionError("motion: a pose dips below the keep-out height")  # guarded above
     return angles
+
+
+def object_motion(obj: ObjectFolder, rng: np.random.Generator, cfg: MotionConfig) -> np.ndarray:
+    """`random_motion` for an object folder: its joint limits, physical link lengths and keep-out."""
+    return random_motion(
+        obj.joint_limits_rad, obj.link_lengths_m, obj.keepout_height_m, obj.link_half_width_m, rng, cfg
+    )

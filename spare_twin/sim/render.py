@@ -20,7 +20,7 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import load_object
 from spare_twin.recording import SIM_DEPTH_SCALE, Camera, RecordingWriter
 from spare_twin.sim.handheld import HandheldPath, handheld_poses
-from spare_twin.sim.motion import MotionConfig, random_motion
+from spare_twin.sim.motion import MotionConfig, object_motion
 from spare_twin.sim.noise import load_noise
 from spare_twin.sim.rig import Rig, load_rig
 from spare_twin.sim.twin import Twin
@@ -122,11 +122,8 @@ def render_recording(
     W, H = parse_resolution(cfg.resolution, rig)
     noise = load_noise(cfg.noise, param="noise")
     K = rig.K(W, H)
-    angles = random_motion(
-        obj.joint_limits_rad,
-        obj.link_lengths_m,
-        obj.keepout_height_m,
-        obj.link_half_width_m,
+    angles = object_motion(
+        obj,
         np.random.default_rng(cfg.seed),
         MotionConfig(n_frames=cfg.frames, fps=cfg.fps),
     )

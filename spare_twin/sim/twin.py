@@ -169,6 +169,10 @@ class Twin:
             self.p.removeBody(b, physicsClientId=self.cid)
         self._extra = []
 
+    def set_link_color(self, link: int, rgb) -> None:
+        """Recolour link `link` (0 = base); the scene randomisation varies the printed colours."""
+        self.p.changeVisualShape(self.body, self._links[link], rgbaColor=[*rgb, 1.0], physicsClientId=self.cid)
+
     def set_table_color(self, rgba) -> None:
         if self.table_id is not None:
             self.p.changeVisualShape(self.table_id, -1, rgbaColor=list(rgba), physicsClientId=self.cid)
