@@ -130,3 +130,36 @@ def test_sim2real_and_print_geometry(tmp_path):
         assert not np.allclose(f["K"][0], Rig().K())
         labels = f["segmentation"][()]
         assert set(np.unique(labels)) >= {0, 1, 2, 3, 4}
+
+
+def test_force_replaces_a_foreign_folder_only_once_the_new_dataset_is_complete(tmp_path, monkeypatch):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    with pytest.raises(SpareTwinError, match="not a dataset folder"):
+        generate_dataset(mine, 1, seed=1, cfg=CFG, progress=False)
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+
+    # Interrupted while the new dataset is made: the old folder is whole, no temporary is left.
+    import spare_twin.dataset.build as build
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(build, "_generate", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        generate_dataset(mine, 1, seed=1, cfg=CFG, progress=False, force=True)
+    monkeypatch.undo()
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
+
+    summary = generate_dataset(mine, 1, seed=1, cfg=CFG, progress=False, force=True)
+    assert summary["replaced"] and summary["root"] == str(mine) and summary["complete"]
+    assert not (mine / "notes.txt").exists() and (mine / "sequences" / "seq-000000.h5").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]
+    # Other seed: refused as it is, replaced with force; the same seed then extends in place.
+    with pytest.raises(SpareTwinError, match="seed 2"):
+        generate_dataset(mine, 1, seed=2, cfg=CFG, progress=False)
+    generate_dataset(mine, 1, seed=2, cfg=CFG, progress=False, force=True)
+    assert json.loads((mine / "dataset.json").read_text())["seed"] == 2
+    assert generate_dataset(mine, 2, seed=2, cfg=CFG, progress=False)["generated"] == 1

@@ -2,6 +2,7 @@
 predict work end to end through the CLI."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -120,3 +121,28 @@ def test_fine_tune_starts_from_a_checkpoint(trained, synthetic_data, tmp_path):
     }
     with pytest.raises(SpareTwinError, match="different network configuration"):
         train(resolve("geo-depth-mv-multitask", other), synthetic_data, tmp_path / "bad", progress=False)
+
+
+def test_force_replaces_a_foreign_run_folder_once_training_is_complete(synthetic_data, tmp_path):
+    from spare_twin.errors import SpareTwinError
+    from spare_twin.nets.presets import resolve
+    from spare_twin.nets.train import train
+
+    cfg = {
+        "net": {"channels": [4, 8], "fc_hidden": 16, "dropout": 0.0},
+        "train": {"epochs": 1, "batch_size": 8, "samples_per_epoch": 16, "val_samples": 8, "threads": 1},
+    }
+    preset = resolve("geo-depth-mv-count", cfg)
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("mine")
+    with pytest.raises(SpareTwinError, match="not a training run"):
+        train(preset, synthetic_data, mine, progress=False)
+    assert sorted(p.name for p in mine.iterdir()) == ["notes.txt"]
+    summary = train(preset, synthetic_data, mine, progress=False, force=True)
+    assert summary["model"] == str(mine / "model.pt") and (mine / "model.pt").is_file()
+    assert not (mine / "notes.txt").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine"]  # no temporary left beside it
+    # the data folder is never replaced, force or not
+    with pytest.raises(SpareTwinError, match="data folder"):
+        train(preset, synthetic_data, Path(synthetic_data) / "run", progress=False, force=True)

@@ -19,6 +19,12 @@ def register(sub) -> None:
     )
     p.add_argument("--out", required=True, metavar="DATA_DIR", help="dataset folder (created, resumed or extended)")
     p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a --out that is not this dataset (another folder, other seed or settings), once the new one "
+        "is complete",
+    )
+    p.add_argument(
         "--preset",
         choices=("paper", "small", "tiny"),
         help="paper: 324 sequences x 8 cameras x 100 frames = 259,200 images (the paper's scale); "
@@ -111,6 +117,7 @@ def run(args: argparse.Namespace) -> int:
             backend=args.backend,
             ray_address=args.ray_address,
             shards=args.ray_shards,
+            force=args.force,
         )
     rate = r["generated_images"] / r["generate_s"] if r["generated"] else 0.0
     splits = ", ".join(f"{k} {v['sequences']} seq / {v['images']} img" for k, v in r["splits"].items())

@@ -45,6 +45,11 @@ def register(sub) -> None:
     p.add_argument("--device", default="auto", choices=["auto", "cpu", "cuda"], help="default auto: a GPU when present")
     p.add_argument("--on-the-fly", action="store_true", help="train on freshly rendered samples (nothing stored)")
     p.add_argument("--resume", action="store_true", help="continue the run in --out after its last completed epoch")
+    p.add_argument(
+        "--force",
+        action="store_true",
+        help="replace a --out that is another run or not a run at all, once the new run is complete",
+    )
     p.add_argument("--list-presets", action="store_true", help="list the presets and exit")
     p.add_argument("--json", action="store_true", help="print a JSON summary on stdout")
     p.set_defaults(func=run)
@@ -111,6 +116,7 @@ def run(args) -> int:
             resume=args.resume,
             command=command or _reconstruct(args),
             progress=True,
+            force=args.force,
         )
     if not is_main_process():
         return 0  # rank 0 prints

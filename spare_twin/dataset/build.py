@@ -28,7 +28,7 @@ from spare_twin.dataset.ray_backend import SHARDS, RaySession, run_ray
 from spare_twin.dataset.store import sequence_filename
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_json_atomic
-from spare_twin.output import process_alive
+from spare_twin.output import OutputRefused, process_alive, writing
 
 DATASET_FORMAT = "spare-twin-dataset/1"
 
@@ -153,8 +153,13 @@ def generate_dataset(
     backend: str = "local",
     ray_address: str | None = None,
     shards: str = "driver",
+    force: bool = False,
 ) -> dict:
     """Generate (or resume, or extend) the dataset at `root`; returns a summary with timings.
+
+    A folder that is neither empty nor a dataset of this seed and these settings is refused; with `force`
+    a new dataset is generated beside it and replaces it once complete (an interrupted forced run leaves
+    the old folder as it was).
 
     backend "local": `workers` processes on this machine (None: 1). "ray": one Ray task per sequence on the
     cluster at `ray_address` (None: a Ray instance of `workers` CPUs started here), at most `workers`
@@ -172,14 +177,23 @@ def generate_dataset(
         raise SpareTwinError("ray_address: only with backend ray")
     if shards not in SHARDS:
         raise SpareTwinError(f"shards {shards!r}: choose {' or '.join(SHARDS)}")
-    if root.exists() and not root.is_dir():
-        raise SpareTwinError(f"{root}: exists and is not a folder")
-    if root.is_dir() and any(root.iterdir()) and not (root / "dataset.json").exists():
-        raise SpareTwinError(f"{root}: not empty and not a dataset folder (no dataset.json)")
     here = Path.cwd().resolve()
     if root.resolve() == here or root.resolve() in here.parents:
         raise SpareTwinError(f"{root}: the current folder, or one around it, is no place for a dataset; name a new one")
-    _check_settings(root, seed, cfg, create=False)  # refuse before writing anything
+    try:  # refuse before writing anything
+        if root.exists() and not root.is_dir():
+            raise OutputRefused(root, "exists and is not a folder", replaceable=True)
+        if root.is_dir() and any(root.iterdir()) and not (root / "dataset.json").exists():
+            raise OutputRefused(root, "not empty and not a dataset folder (no dataset.json)", replaceable=True)
+        _check_settings(root, seed, cfg, create=False)
+    except SpareTwinError as exc:
+        if not force:
+            raise
+        if isinstance(exc, OutputRefused) and not exc.replaceable:
+            raise
+        with writing(root, "dataset", force=True) as fresh:
+            summary = generate_dataset(fresh, instances, seed, workers, cfg, progress, backend, ray_address, shards)
+        return {**summary, "root": str(root), "replaced": True}
     seq_dir = root / "sequences"
     t0 = time.perf_counter()
     # Ray first: a cluster that cannot be reached leaves no folder behind

@@ -35,6 +35,7 @@ from spare_twin.nets.data import dataset_rig, open_on_the_fly, open_split
 from spare_twin.nets.distributed import Group, session
 from spare_twin.nets.models import build_model, decode, input_norms, model_inputs
 from spare_twin.nets.presets import NetConfig, Preset, TrainConfig
+from spare_twin.output import writing
 
 
 def compute_loss(net: NetConfig, tr: TrainConfig, out: dict, batch: dict, device) -> torch.Tensor:
@@ -217,11 +218,28 @@ def train(
     resume: bool = False,
     command: str = "",
     progress: bool = True,
+    force: bool = False,
 ) -> dict:
     """Train `preset` on `data_dir` into `out_dir`: in this process, or as one rank of a torchrun group
-    (every rank returns rank 0's summary)."""
+    (every rank returns rank 0's summary).
+
+    `out_dir` must be absent, empty or (with `resume`) a run to continue; with `force`, a folder that is
+    none of these (another run, a folder of yours) is replaced by the new run once it is complete: rank 0
+    trains in a hidden sibling folder and swaps it in at the end, so an interrupted run leaves it whole."""
+    out_dir = Path(out_dir)
     with session(device) as (group, dev):
-        return _train(preset, data_dir, Path(out_dir), dev, group, on_the_fly, resume, command, progress)
+        if force and not resume and group.is_main and _replaceable(out_dir, data_dir):
+            with writing(out_dir, "train", inputs=[data_dir], force=True) as fresh:
+                summary = _train(preset, data_dir, fresh, dev, group, on_the_fly, resume, command, progress)
+            return {k: v.replace(str(fresh), str(out_dir)) if isinstance(v, str) else v for k, v in summary.items()}
+        return _train(preset, data_dir, out_dir, dev, group, on_the_fly, resume, command, progress)
+
+
+def _replaceable(out_dir: Path, data_dir) -> bool:
+    """A run folder problem that `force` may settle: not the data folder, not inside or around it."""
+    out, data = out_dir.resolve(), Path(data_dir).resolve()
+    inside = out == data or data in out.parents or out in data.parents
+    return not inside and _run_folder_problem(out_dir, data_dir, resume=False) is not None
 
 
 def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resume, command, progress) -> dict:
