@@ -171,10 +171,15 @@ def _epoch_loader(train_src, data_dir, net, tr: TrainConfig, epoch: int, on_the_
 RUN_FILES = ("last.pt", "best.pt", "model.pt", "history.json", "learning_curve.png", "MODEL_CARD.md")
 
 
+def _touches_data(out_dir: Path, data_dir) -> bool:
+    """The run folder is the data folder, inside it or around it: never written, force or not."""
+    out, data = out_dir.resolve(), Path(data_dir).resolve()
+    return out == data or data in out.parents or out in data.parents
+
+
 def _run_folder_problem(out_dir: Path, data_dir, resume: bool) -> str | None:
     last_path = out_dir / "last.pt"
-    out, data = out_dir.resolve(), Path(data_dir).resolve()
-    if out == data or data in out.parents or out in data.parents:
+    if _touches_data(out_dir, data_dir):
         return f"out_dir {out_dir}: is, is inside or holds the data folder {data_dir}; write the run elsewhere"
     if resume:
         return None if last_path.is_file() else f"resume: {last_path} does not exist (nothing to resume)"
@@ -236,10 +241,8 @@ def train(
 
 
 def _replaceable(out_dir: Path, data_dir) -> bool:
-    """A run folder problem that `force` may settle: not the data folder, not inside or around it."""
-    out, data = out_dir.resolve(), Path(data_dir).resolve()
-    inside = out == data or data in out.parents or out in data.parents
-    return not inside and _run_folder_problem(out_dir, data_dir, resume=False) is not None
+    """A run folder problem that `force` may settle: any but touching the data folder."""
+    return not _touches_data(out_dir, data_dir) and _run_folder_problem(out_dir, data_dir, resume=False) is not None
 
 
 def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resume, command, progress) -> dict:
