@@ -13,7 +13,7 @@ def _batch(net, B=2):
     Kv = 1 if net.mode == "tmp" else V
     K = torch.tensor([[125.0, 0, 63.5], [0, 125.0, 47.5], [0, 0, 1]]).expand(B, Kv, 3, 3)
     return {
-        "x": torch.rand(B, V, 96, 128),
+        "x": torch.rand(B, V, net.height, net.width),
         "K": K,
         "T_world_camera": torch.eye(4).expand(B, Kv, 4, 4),
         "print_scale": torch.full((B,), 0.08),

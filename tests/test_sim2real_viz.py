@@ -75,6 +75,8 @@ def test_comparison_rrd_verifies(tmp_path):
         recs.append(Recording.open(tmp_path / name))
     result = _result(2, 2, 1, [1.0, 2.0])
     result["registration"] = {"joint_angles_rad": [0.1, 0.2]}
+    result["real_twin_aligned"] = dict(result["sim"])
+    result["errors"]["real_twin_aligned"] = result["errors"]["sim"]
     cube = (
         np.array([[0, 0, 0], [0.01, 0, 0], [0, 0.01, 0], [0, 0, 0.01]], np.float32),
         np.array([[0, 1, 2], [0, 1, 3], [0, 2, 3], [1, 2, 3]], np.uint32),
@@ -92,6 +94,7 @@ def test_comparison_rrd_verifies(tmp_path):
             np.ones((8, 96, 128)),
             recs[0],
             recs[1],
+            real_twin_aligned_input=np.ones((8, 96, 128)),
         ),
     )
     rerun = shutil.which("rerun") or str(Path(sys.executable).parent / "rerun")
@@ -102,6 +105,8 @@ def test_comparison_rrd_verifies(tmp_path):
     for entity in (
         "/real/network_input",
         "/sim/network_input",
+        "/real_twin_aligned/network_input",
+        "/lengths/real_twin_aligned",
         "/world/real_cloud",
         "/world/twin/link0",
         "/summary",
@@ -109,6 +114,11 @@ def test_comparison_rrd_verifies(tmp_path):
         "/sim/frame/color",
     ):
         assert entity in res.stdout, entity
+    # the summary names the real side as predict's and the twin-aligned one as a diagnostic
+    from spare_twin.compare.rerun_log import summary_markdown
+
+    md = summary_markdown(result)
+    assert "| real (predict alone) | 1 |" in md and "| diagnostic: real, twin-aligned | 2 |" in md
 
 
 def _prediction(n, lengths, angles=None, method="posed"):
@@ -130,15 +140,15 @@ def test_comparison_json_is_the_compare_object():
     T_world_object = np.eye(4)
     T_world_object[:3, 3] = [0.1, 0.2, 0.0]
     sim = _prediction(2, (1.5, 0.5, 0.4), angles=(0.1, -0.2))
-    real = _prediction(1, (1.4, 0.5))
-    own = _prediction(2, (1.5, 0.5, 0.3), method="fused")
-    c = Comparison(truth, sim, real, own, fit, T_world_object, Path("rec_sim_twin"), {"version": "x"})
+    real = _prediction(2, (1.5, 0.5, 0.3), angles=(0.1 + np.radians(3.0), -0.2), method="fused")
+    aligned = _prediction(1, (1.4, 0.5))
+    c = Comparison(truth, sim, real, aligned, fit, T_world_object, Path("rec_sim_twin"), {"version": "x"})
     j = json.loads(json.dumps(c.to_json()))
     assert list(j) == [
         "truth",
         "sim",
         "real",
-        "real_estimated_frame",
+        "real_twin_aligned",
         "registration",
         "errors",
         "sim_recording",
@@ -146,15 +156,38 @@ def test_comparison_json_is_the_compare_object():
         "settings",
     ]
     assert j["truth"] == {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4], "joint_angles_rad": [0.1, -0.2]}
-    # every side keeps the same keys, null where the model says nothing (here: no joint angles)
-    assert list(j["sim"]) == list(SIDE_KEYS) and j["real"]["joint_angles_rad"] is None
-    assert j["real_estimated_frame"]["input"] == "fused" and j["real_estimated_frame"]["yaw_deg"] == 90.0
+    # every side keeps the same keys, null where the model says nothing (here: no joint angles), and
+    # passes through how `predict` made its input
+    for side in ("sim", "real", "real_twin_aligned"):
+        assert list(j[side])[: len(SIDE_KEYS)] == list(SIDE_KEYS)
+    assert j["real_twin_aligned"]["joint_angles_rad"] is None
+    assert j["real"]["input"] == "fused" and j["real"]["yaw_deg"] == 90.0 and "reason" not in j["real"]
+    # errors: the real (predict alone) side and the diagnostic under their own keys
     assert j["errors"]["real"] == _score(j["truth"], j["real"]) and j["errors"]["sim"]["E_L"] == 0.0
+    assert j["errors"]["real_twin_aligned"] == _score(j["truth"], j["real_twin_aligned"])
+    assert j["errors"]["real"]["count_correct"] and not j["errors"]["real_twin_aligned"]["count_correct"]
     assert j["errors"]["joint_angles_deg"] == pytest.approx([2.0, 0.0])
+    assert j["errors"]["real_joint_angles_deg"] == pytest.approx([3.0, 0.0])
     # the twin's base in the real recording's world: object frame then base in the object frame
     np.testing.assert_allclose(j["registration"]["T_world_base"], T_world_object @ fit.T_object_base)
     assert j["model"] == "m.pt" and j["sim_recording"] == "rec_sim_twin" and "rrd" not in j
     assert replace(c, rrd="out.rrd").to_json()["rrd"] == "out.rrd"
+    # stage timings are for people: the JSON stays the same bytes on every run
+    assert replace(c, timings_s={"articulated fit": 1.0}).to_json() == c.to_json()
     lines = c.summary().splitlines()
     assert lines[0].split() == ["truth", "n", "=", "2", "lengths", "[1.500,", "0.500,", "0.400]"]
-    assert "count WRONG" in lines[2] and lines[-1].endswith("error 2.0, 0.0 deg")
+    assert "real (predict alone)" in lines[2] and "count right" in lines[2]
+    assert lines[3].strip().startswith("diagnostic: real, twin-aligned") and "count WRONG" in lines[3]
+    assert lines[-1].endswith("error 2.0, 0.0 deg")
+
+
+def test_no_count_from_predict_is_reported_not_scored_right():
+    """`predict` may find no chain (`n_links` null, with a reason): the real side is then wrong, with no E_L."""
+    from dataclasses import replace
+
+    from spare_twin.compare.result import Truth, side_json
+
+    none = replace(_prediction(2, (1.5, 0.5, 0.4)), n_links=None, link_lengths_pu=None)
+    s = Truth(2, (1.5, 0.5, 0.4)).score(none)
+    assert not s.count_correct and s.E_L is None
+    assert side_json(none)["n_links"] is None and side_json(none)["link_lengths_m"] is None

@@ -53,7 +53,9 @@ def fuse_frames(
     """Integrate every frame at its camera-to-world pose into a voxel-block TSDF grid (open3d tensor API).
 
     (The tensor VoxelBlockGrid rather than the legacy ScalableTSDFVolume: in the open3d 0.20 wheel the
-    legacy volume extracts no surface at all.)
+    legacy volume extracts no surface at all.) The points come sorted by position: open3d's threads
+    extract the same values in a different order from run to run, and the same poses must give the
+    same cloud byte for byte.
     """
     import open3d as o3d
     from tqdm import tqdm
@@ -84,6 +86,10 @@ def fuse_frames(
     pc = grid.extract_point_cloud(weight_threshold=cfg.min_weight)
     pts = pc.point.positions.numpy().astype(np.float64) if "positions" in pc.point else np.zeros((0, 3))
     cols = np.clip(pc.point.colors.numpy().astype(np.float64), 0, 1) if "colors" in pc.point else np.zeros((0, 3))
+    if len(pts) and len(cols) == len(pts):  # a fixed order: by position as stored (float32), then colour
+        p32 = pts.astype(np.float32)
+        order = np.lexsort((cols[:, 2], cols[:, 1], cols[:, 0], p32[:, 2], p32[:, 1], p32[:, 0]))
+        pts, cols = pts[order], cols[order]
     m = None
     if mesh and len(pts):
         m = grid.extract_triangle_mesh(weight_threshold=cfg.min_weight).to_legacy()

@@ -23,15 +23,13 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.capture.frames import load_frames
-from spare_twin.capture.fusion import Fused, FusionConfig, fuse_frames, mesh_ply_bytes, ply_bytes, read_ply_points
+from spare_twin.capture.fusion import FusionConfig, fuse_frames, mesh_ply_bytes, ply_bytes, read_ply_points
 from spare_twin.capture.registration import RegistrationConfig, register_frames
 from spare_twin.capture.segment import SegmentConfig, find_object
 from spare_twin.errors import SpareTwinError
 from spare_twin.recording import REFERENCE_POSES, Recording, Registration, npy_bytes, update_recording
 
 FIND = ("auto", "require", "skip")
-#: Registered poses are stored rounded to this many decimals (1e-10 m, 1e-10 rad: far below any sensor).
-POSE_DECIMALS = 10
 
 
 @dataclass(frozen=True)
@@ -93,11 +91,10 @@ def register_recording(
     ref = rec.reference_poses(cam)
     use_ref = bool(use_reference and ref is not None)
     frames = load_frames(rec, cam)
+    # both steps are byte-reproducible (registration.py, fusion.py): a rerun writes identical files
     result = register_frames(frames, reg_cfg, ref if use_ref else None, progress)
-    # open3d's threaded optimiser and TSDF extraction vary in the last bits and in point order from run
-    # to run; rounding far below a sensor's precision and sorting make a rerun byte-identical
-    poses = np.round(result.poses, POSE_DECIMALS) + 0.0
-    fused = _sorted(fuse_frames(frames, poses, fusion_cfg, mesh=mesh, progress=progress))
+    poses = result.poses
+    fused = fuse_frames(frames, poses, fusion_cfg, mesh=mesh, progress=progress)
     if len(fused.points) == 0:
         raise SpareTwinError(f"{rec.root}: TSDF fusion produced no surface (depth beyond {fusion_cfg.max_depth_m} m?)")
     obj = None
@@ -145,15 +142,6 @@ def register_recording(
         registration=registration,
         source_frames=tuple(src_names) if src_names and len(src_names) == rec.n_frames else None,
     )
-
-
-def _sorted(fused: Fused) -> Fused:
-    """The fused cloud in a fixed order (by position, as stored in float32), whatever open3d's threads did."""
-    if len(fused.points) == 0:
-        return fused
-    p32 = fused.points.astype(np.float32)
-    order = np.lexsort((fused.colors[:, 2], fused.colors[:, 1], fused.colors[:, 0], p32[:, 2], p32[:, 1], p32[:, 0]))
-    return dataclasses.replace(fused, points=fused.points[order], colors=fused.colors[order])
 
 
 def _cfg_dict(cfg) -> dict:

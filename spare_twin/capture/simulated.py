@@ -38,7 +38,7 @@ class SensorCaptureConfig:
     resolution: str = "320x240"
     noise: str = "realsense_sr300"
     """Depth-sensor noise model, capture/rigs/noise_NAME.json."""
-    loop_gaps: str = "2,4,8,16"
+    loop_gaps: str = "2"
     """Loop edges for registration: enough to close the drift of a 40-frame sweep, few enough to be quick."""
     seed: int = 0
     """The hand-held path and the sensor noise."""

@@ -30,10 +30,8 @@ def add_bench(bsub) -> None:
     )
     p.add_argument("--gaps", default="1,10,40", help="frame gaps to report, comma-separated (default 1,10,40)")
     p.add_argument("--max-frames", type=int, default=None, help="use only the first N frames (quick runs)")
-    p.add_argument(
-        "--loop-gaps", default="2,4,8,16,24,32,40", help="registration loop-edge gaps (default 2,4,8,16,24,32,40)"
-    )
-    p.add_argument("--voxel", type=float, default=0.005, help="ICP voxel size, metres (default 0.005)")
+    p.add_argument("--loop-gaps", default="2", help="registration loop-edge gaps (default 2, the library's)")
+    p.add_argument("--voxel", type=float, default=0.004, help="ICP voxel size, metres (default 0.004)")
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=bench_capture)
 

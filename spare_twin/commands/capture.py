@@ -104,12 +104,13 @@ def register(sub) -> None:
         action="store_false",
         help="register from scratch, ignoring any poses in the recording",
     )
-    g.add_argument("--voxel", type=float, default=0.005, help="ICP voxel size in metres (default 0.005)")
+    g.add_argument("--voxel", type=float, default=0.004, help="ICP voxel size in metres (default 0.004)")
     g.add_argument("--max-depth", type=float, default=2.0, help="ignore depth beyond this, metres (default 2.0)")
     g.add_argument(
         "--loop-gaps",
-        default="2,4,8,16,24,32,40",
-        help="extra edges between frames this many positions apart (default 2,4,8,16,24,32,40)",
+        default="2",
+        help="extra edges between frames this many positions apart (default 2; loop closures across the sweep's "
+        "seam are added where the views overlap)",
     )
     g.add_argument(
         "--global-init",

@@ -13,7 +13,9 @@ def register(sub) -> None:
         help="sim vs real predictions for one printed object (or a batch), logged to Rerun",
         description="Fit the object's URDF twin to the fused real recording (base pose and joint angles), "
         "render the twin through the real cameras, run the network on both recordings and score both "
-        "predictions against the printed configuration. The real recording is registered first if it is "
+        "predictions against the printed configuration. `real` is what `predict` says of the real "
+        "recording alone; `real_twin_aligned` is a diagnostic that re-aligns the real cameras onto the "
+        "fitted printed twin first. The real recording is registered first if it is "
         "not yet (that writes its poses and fused cloud into it). With --batch DIR, every DIR/<name>/ "
         "holding object/ and real/ is compared and a sim-to-real table is written to --out.",
     )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 
 def register(sub) -> None:
@@ -58,7 +59,14 @@ def run(args) -> int:
         )
     if args.json:
         print(json.dumps(res.to_json()))
+    elif res.reason is not None:
+        print(f"{args.recording}: {res.reason}")
     else:
         lengths = "n/a" if res.link_lengths_pu is None else ", ".join(f"{v:.3f}" for v in res.link_lengths_pu)
-        print(f"{res.n_links} moving links; lengths (paper units, base first): {lengths}")
+        line = f"{res.n_links} moving links; lengths (paper units, base first): {lengths}"
+        if res.joint_angles_rad is not None:
+            line += "; joint angles (deg): " + ", ".join(f"{math.degrees(a):.1f}" for a in res.joint_angles_rad)
+        print(line)
+        if res.timings_s:
+            print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in res.timings_s.items()))
     return 0

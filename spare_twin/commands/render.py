@@ -12,10 +12,16 @@ def register(sub) -> None:
         "render",
         help="render a twin-simulation recording of an object folder (rig, random motion, RGB-D frames, ground truth)",
         description="Load OBJECT_DIR's URDF in pybullet, move its joints smoothly at random (within the limits, "
-        "clear of the foot) and record every rig camera: colour, depth, link segmentation, intrinsics, poses "
-        "and per-frame ground truth, as a spare-twin recording.",
+        "clear of the foot) and record every rig camera (or one hand-held camera, --path handheld): colour, "
+        "depth, link segmentation, intrinsics, poses and per-frame ground truth, as a spare-twin recording. "
+        "The same seed and options give a byte-identical recording.",
     )
-    p.add_argument("object_dir", metavar="OBJECT_DIR", help="object folder written by `spare-twin object`")
+    p.add_argument(
+        "object_dir",
+        metavar="OBJECT_DIR",
+        help="object folder written by `spare-twin object`; with --empty it still sets the scene (the camera "
+        "path, the clutter kept clear of where the object stands) but is not put on the table",
+    )
     p.add_argument(
         "--out",
         required=True,
@@ -62,6 +68,35 @@ def register(sub) -> None:
         help="handheld: store the camera poses only as ground truth (poses 'unknown'), as a real "
         "sensor would; `capture register` must then find them",
     )
+    p.add_argument(
+        "--sweep-deg",
+        type=float,
+        default=360.0,
+        metavar="D",
+        help="handheld: azimuth the camera covers, 30..360 degrees (default: 360, one loop round the object; "
+        "less: an arc from the first frame to the last)",
+    )
+    p.add_argument(
+        "--distance",
+        type=float,
+        metavar="M",
+        help="handheld: mean camera distance from the object's middle, 0.2..3 m (default: 0.45 m, arm's length, "
+        "or 1.3 x the noise model's minimum range where that is farther, e.g. 1.29 m for kinect_v1)",
+    )
+    p.add_argument(
+        "--clutter",
+        type=int,
+        default=0,
+        metavar="N",
+        help="N seeded boxes and cylinders (2-12 cm, random colours) standing on the table 12..35 cm from the "
+        "base axis, clear of the object (0..8; default: 0)",
+    )
+    p.add_argument(
+        "--empty",
+        action="store_true",
+        help="render the same scene (table, clutter, cameras, path, noise) with NO object on the table; "
+        "ground truth then has no n_links, segmentation is all background",
+    )
     p.set_defaults(func=run)
 
 
@@ -79,6 +114,10 @@ def run(args: argparse.Namespace) -> int:
         noise=args.noise,
         motion=args.motion,
         hide_poses=args.hide_poses,
+        sweep_deg=args.sweep_deg,
+        distance_m=args.distance,
+        clutter=args.clutter,
+        empty=args.empty,
     )
     with flags(
         frames="--frames",
@@ -87,14 +126,20 @@ def run(args: argparse.Namespace) -> int:
         resolution="--resolution",
         noise="--noise",
         hide_poses="--hide-poses",
+        sweep_deg="--sweep-deg",
+        distance_m="--distance",
+        clutter="--clutter",
+        empty="--empty",
         rig="--rig",
         force="--force",
     ):
         r = render_recording(args.object_dir, args.out, cfg, force=args.force)
-    what = f"{r.cameras} cameras" if cfg.path == "rig" else "1 hand-held camera"
+    what = f"{r.cameras} cameras" if cfg.path == "rig" else f"1 hand-held camera ({cfg.sweep_deg:g} deg)"
+    clutter = f", {r.clutter} clutter items" if r.clutter else ""
+    truth = "no object on the table" if r.n_links is None else f"ground truth for {r.n_links} moving links"
     print(
         f"wrote {r.recording}: {what} x {r.frames} frames at {r.width}x{r.height} "
-        f"(colour, depth{', segmentation' if cfg.segmentation else ''}; noise {cfg.noise}; {r.motion} joints), "
-        f"ground truth for {r.n_links} moving links"
+        f"(colour, depth{', segmentation' if cfg.segmentation else ''}; noise {cfg.noise}; {r.motion} joints"
+        f"{clutter}), {truth}"
     )
     return 0

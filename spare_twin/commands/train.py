@@ -33,7 +33,12 @@ def register(sub) -> None:
     )
     p.add_argument("--preset", metavar="NAME", help="a preset (see --list-presets)")
     p.add_argument("--config", metavar="CFG_JSON", help='{"preset": NAME, "net": {...}, "train": {...}} overrides')
-    p.add_argument("--data", metavar="DATA_DIR", help="dataset folder (spare-twin dataset, or a synthetic.json folder)")
+    p.add_argument(
+        "--data",
+        metavar="DATA_DIR",
+        help="dataset folder (spare-twin dataset, or a synthetic.json folder); the profile network takes several, "
+        "comma-separated",
+    )
     p.add_argument("--out", metavar="RUN_DIR", help="run folder to write")
     p.add_argument("--epochs", type=int, help="override the preset's epochs")
     p.add_argument("--batch-size", type=int, help="override the preset's batch size")
@@ -100,6 +105,20 @@ def run(args) -> int:
     given = {f"train.{k}": OVERRIDE_FLAGS[k] for k in overrides}
     with flags(**given):
         preset = resolve(args.preset, config, args.config or "--preset")
+    if preset.net.arch == "profile":
+        from spare_twin.nets.profile_train import train_profile
+
+        with flags(data_dir="--data", out_dir="--out", **given):
+            summary = train_profile(
+                preset,
+                args.data.split(","),
+                args.out,
+                workers=preset.train.workers or 1,
+                command=_reconstruct(args),
+                force=args.force,
+            )
+        print(json.dumps(summary) if args.json else f"wrote {summary['model']} (best epoch {summary['best_epoch']})")
+        return 0
     from spare_twin.nets.distributed import is_main_process
     from spare_twin.nets.train import train
 

@@ -6,12 +6,16 @@ Entity layout::
     world/twin/link<k>                  the posed twin's meshes (the printed STLs), link colours
     real/frame/color, real/frame/depth  the real recording, frame by frame (timeline `frame`)
     sim/frame/color, sim/frame/depth    the twin rendered through the same cameras
-    real/network_input, sim/network_input   the depth views each network saw, tiled (metres)
-    lengths/truth, lengths/sim, lengths/real  link lengths (paper units), base first
-    summary                             markdown table: truth vs sim vs real
+    real/network_input, sim/network_input   the depth views each network saw, tiled (metres); real is
+                                        `predict` on the real recording alone
+    real_twin_aligned/network_input     diagnostic: the real views with the cameras aligned on the
+                                        fitted printed twin
+    lengths/truth, lengths/sim, lengths/real, lengths/real_twin_aligned
+                                        link lengths (paper units), base first
+    summary                             markdown table: truth vs sim vs real, then the diagnostic
 
-Blueprint: real (left) and sim (right) frames beside the 3D scene; below, the two networks' inputs,
-the length bar charts and the summary.
+Blueprint: real (left) and sim (right) frames beside the 3D scene; below, the networks' inputs (the
+diagnostic's in a tab behind real's), the length bar charts and the summary.
 """
 
 from __future__ import annotations
@@ -41,6 +45,8 @@ class ComparisonLog:
     sim_input: np.ndarray
     real_rec: Recording
     sim_rec: Recording
+    real_twin_aligned_input: np.ndarray | None = None
+    """(V, H, W) depth the network saw for the diagnostic (real cameras aligned on the fitted twin)."""
 
 
 def tile(views: np.ndarray, columns: int = 4) -> np.ndarray:
@@ -54,23 +60,46 @@ def tile(views: np.ndarray, columns: int = 4) -> np.ndarray:
     return out
 
 
+#: Summary rows: side -> label (`real` is `predict` alone; the last a diagnostic that needs the twin).
+SUMMARY_LABELS = {
+    "truth": "truth",
+    "sim": "sim",
+    "real": "real (predict alone)",
+    "real_twin_aligned": "diagnostic: real, twin-aligned",
+}
+
+
+#: Length bars per side, grouped around each link's slot.
+BAR_COLOURS = {
+    "truth": [120, 120, 120],
+    "sim": [60, 130, 230],
+    "real": [230, 120, 40],
+    "real_twin_aligned": [150, 150, 60],
+}
+
+
 def summary_markdown(result: dict) -> str:
-    truth, sim, real = result["truth"], result["sim"], result["real"]
     errs = result["errors"]
 
     def lengths(d):
         return ", ".join(f"{x:.3f}" for x in (d.get("link_lengths_m") or [])) or "-"
 
     def scored(side):
-        return f"{'right' if errs[side]['count_correct'] else 'wrong'} | {errs[side]['E_L']:.4f}"
+        e = errs.get(side)
+        if e is None:
+            return " | "
+        e_l = "-" if e["E_L"] is None else f"{e['E_L']:.4f}"
+        return f"{'right' if e['count_correct'] else 'wrong'} | {e_l}"
 
-    lines = [
-        "| | links | lengths (paper units, base first) | count | E_L |",
-        "|---|---|---|---|---|",
-        f"| truth | {truth['n_links']} | {lengths(truth)} | | |",
-        f"| sim | {sim['n_links']} | {lengths(sim)} | {scored('sim')} |",
-        f"| real | {real['n_links']} | {lengths(real)} | {scored('real')} |",
-    ]
+    lines = ["| | links | lengths (paper units, base first) | count | E_L |", "|---|---|---|---|---|"]
+    for side, label in SUMMARY_LABELS.items():
+        d = result.get(side)
+        if d is None:
+            continue
+        tail = " | " if side == "truth" else scored(side)
+        lines.append(f"| {label} | {d['n_links']} | {lengths(d)} | {tail} |")
+    if (result.get("real") or {}).get("reason"):
+        lines += ["", f"real: no count ({result['real']['reason']})"]
     fit = result.get("registration") or {}
     if fit.get("joint_angles_rad") is not None:
         lines += [
@@ -106,10 +135,15 @@ def _blueprint():
                 column_shares=[1, 2, 1],
             ),
             rrb.Horizontal(
-                rrb.Spatial2DView(origin="real/network_input", name="real: network input (depth)"),
+                rrb.Tabs(
+                    rrb.Spatial2DView(origin="real/network_input", name="real: network input (depth)"),
+                    rrb.Spatial2DView(
+                        origin="real_twin_aligned/network_input", name="diagnostic, twin-aligned: network input"
+                    ),
+                ),
                 rrb.Spatial2DView(origin="sim/network_input", name="sim: network input (depth)"),
-                rrb.BarChartView(origin="lengths", name="link lengths: truth, sim, real"),
-                rrb.TextDocumentView(origin="summary", name="truth vs sim vs real"),
+                rrb.BarChartView(origin="lengths", name="link lengths: truth, sim, real, diagnostic"),
+                rrb.TextDocumentView(origin="summary", name="truth vs sim vs real (predict alone)"),
             ),
             row_shares=[3, 2],
         ),
@@ -143,19 +177,22 @@ def _log(tmp: Path, log: ComparisonLog, every: int) -> None:
             rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles, albedo_factor=[*rgb, 0.55]),
             static=True,
         )
-    for side, views in (("real", log.real_input), ("sim", log.sim_input)):
-        stream.log(f"{side}/network_input", rr.DepthImage(tile(np.asarray(views, np.float32)), meter=1.0), static=True)
-    colours = {"truth": [120, 120, 120], "sim": [60, 130, 230], "real": [230, 120, 40]}
-    for offset, side in zip((-0.27, 0.0, 0.27), ("truth", "sim", "real")):
+    inputs = (("real", log.real_input), ("sim", log.sim_input), ("real_twin_aligned", log.real_twin_aligned_input))
+    for side, views in inputs:
+        if views is not None:
+            stream.log(
+                f"{side}/network_input", rr.DepthImage(tile(np.asarray(views, np.float32)), meter=1.0), static=True
+            )
+    for offset, (side, colour) in zip((-0.3, -0.1, 0.1, 0.3), BAR_COLOURS.items()):
+        if side not in log.result:
+            continue
         values = log.result[side].get("link_lengths_m") or []
         padded = np.zeros(7, np.float32)
         padded[: len(values)] = values
         # Grouped bars: link i's truth, sim and real side by side around x = i.
         stream.log(
             f"lengths/{side}",
-            rr.BarChart(
-                padded, color=colours[side], abscissa=np.arange(7) + offset, widths=np.full(7, 0.25, np.float32)
-            ),
+            rr.BarChart(padded, color=colour, abscissa=np.arange(7) + offset, widths=np.full(7, 0.18, np.float32)),
             static=True,
         )
     stream.log("summary", rr.TextDocument(summary_markdown(log.result), media_type=rr.MediaType.MARKDOWN), static=True)

@@ -14,12 +14,21 @@ from spare_twin.config import LABEL_SLOTS
 from spare_twin.nets.metrics import length_errors
 from spare_twin.nets.predict import Prediction
 
-#: What each side of a comparison keeps of its prediction (JSON keys)...
+#: What each side of a comparison keeps of its prediction (JSON keys, null where the model says nothing)...
 SIDE_KEYS = ("n_links", "link_lengths_m", "probabilities", "joint_angles_rad")
-#: ... and the side that `predict` frames by itself, also how it did.
-ESTIMATED_FRAME_KEYS = (*SIDE_KEYS, "input", "yaw_deg")
+#: ... and what it passes through only where the prediction has it (`reason`: why there is no count;
+#: `input`, `yaw_deg`: how `predict` made the network's input of the recording).
+OPTIONAL_KEYS = ("reason", "input", "yaw_deg")
+#: The sides of a comparison besides the truth: the twin in the same cameras, `predict` on the real
+#: recording alone, and the diagnostic that places the real cameras on the fitted printed twin.
+SIDES = ("sim", "real", "real_twin_aligned")
 #: The summary's rows: side -> label.
-SUMMARY_SIDES = {"truth": "truth", "sim": "sim", "real": "real", "real_estimated_frame": "real, predict's own frame"}
+SUMMARY_SIDES = {
+    "truth": "truth",
+    "sim": "sim",
+    "real": "real (predict alone)",
+    "real_twin_aligned": "diagnostic: real, twin-aligned",
+}
 
 
 @dataclass(frozen=True)
@@ -82,26 +91,31 @@ def summary_row(name: str, n_links: int | None, lengths_pu, scored: Score | None
     tail = ""
     if scored is not None and scored.E_L is not None:
         tail = f"  count {'right' if scored.count_correct else 'WRONG'}, E_L {scored.E_L:.4f}"
-    return f"  {name:<26s} n = {n_links}  lengths [{lengths}]{tail}"
+    return f"  {name:<32s} n = {n_links}  lengths [{lengths}]{tail}"
 
 
-def _keep(prediction: Prediction, keys: tuple[str, ...]) -> dict:
+def side_json(prediction: Prediction) -> dict:
+    """What a comparison keeps of one prediction: SIDE_KEYS always, OPTIONAL_KEYS where present."""
     out = prediction.to_json()
-    return {k: out.get(k) for k in keys}
+    return {**{k: out.get(k) for k in SIDE_KEYS}, **{k: out[k] for k in OPTIONAL_KEYS if k in out}}
 
 
 @dataclass(frozen=True)
 class Comparison:
     """Sim vs real for one printed object (`compare`).
 
-    `real` is the network on the real recording with its views placed by the twin's fitted base pose
-    (the frame the sim twin stands in); `real_estimated_frame` is what `predict` alone makes of it.
+    `real` is what `predict` says of the real recording alone: no object folder, no print scale, no
+    camera poses from the twin; it is the figure that measures the network's transfer to real data.
+    `real_twin_aligned` is a diagnostic: the same network with the real cameras re-aligned onto the
+    printed twin fitted to the real cloud, and its base frame taken from that fit (the frame the sim
+    twin stands in); it needs the true object, so it says how far the rest of the path (not the
+    network) costs, never how `predict` does.
     """
 
     truth: Truth
     sim: Prediction
     real: Prediction
-    real_estimated_frame: Prediction
+    real_twin_aligned: Prediction
     fit: ArticulatedFit
     """The URDF twin fitted to the real cloud, in the real recording's object frame."""
     T_world_object: np.ndarray
@@ -110,6 +124,9 @@ class Comparison:
     settings: dict
     """`CompareConfig.settings()`: what a batch checks before reusing the comparison."""
     rrd: str | None = None
+    timings_s: dict[str, float] | None = None
+    """Seconds per stage (registration, fusion, articulated fit, sim twin, predictions, rrd), for the
+    human summary; not in `to_json()`, which is the same bytes on every run."""
 
     @property
     def T_world_base(self) -> np.ndarray:
@@ -121,7 +138,7 @@ class Comparison:
         return self.real.model
 
     def errors(self, side: str) -> Score:
-        """The score of side "sim", "real" or "real_estimated_frame"."""
+        """The score of side "sim", "real" or "real_twin_aligned" against the truth."""
         return self.truth.score(getattr(self, side))
 
     @property
@@ -129,8 +146,16 @@ class Comparison:
         """|fitted - recorded| joint angles (wrapped), None when the recording has no ground truth."""
         if self.truth.joint_angles_rad is None:
             return None
-        diff = np.asarray(self.fit.joint_angles_rad) - np.asarray(self.truth.joint_angles_rad)
-        return tuple(float(np.degrees(abs((d + np.pi) % (2 * np.pi) - np.pi))) for d in diff)
+        return angle_errors_deg(self.fit.joint_angles_rad, self.truth.joint_angles_rad)
+
+    def predicted_angle_errors_deg(self, side: str = "real") -> tuple[float, ...] | None:
+        """|predicted - recorded| joint angles of a side (wrapped); None without both or with another count."""
+        predicted = getattr(self, side).joint_angles_rad
+        if self.truth.joint_angles_rad is None or predicted is None:
+            return None
+        if len(predicted) != len(self.truth.joint_angles_rad):
+            return None
+        return angle_errors_deg(predicted, self.truth.joint_angles_rad)
 
     def summary_rows(self, names: dict[str, str] = SUMMARY_SIDES) -> list[str]:
         """One `summary_row` per side named in `names` (side -> label), scored against the truth."""
@@ -146,9 +171,14 @@ class Comparison:
     def summary(self) -> str:
         """The `compare` report: truth and every side, then the fitted joint angles' errors."""
         lines = self.summary_rows()
+        reason = self.real.to_json().get("reason")
+        if reason:
+            lines.append(f"  real: no count ({reason})")
         angles = self.joint_angle_errors_deg
         if angles is not None:
             lines.append("  joint angles from registration: error " + ", ".join(f"{a:.1f}" for a in angles) + " deg")
+        if self.timings_s:
+            lines.append("  seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in self.timings_s.items()))
         return "\n".join(lines)
 
     def to_json(self) -> dict:
@@ -156,9 +186,9 @@ class Comparison:
         angles = self.joint_angle_errors_deg
         out = {
             "truth": self.truth.to_json(),
-            "sim": _keep(self.sim, SIDE_KEYS),
-            "real": _keep(self.real, SIDE_KEYS),
-            "real_estimated_frame": _keep(self.real_estimated_frame, ESTIMATED_FRAME_KEYS),
+            "sim": side_json(self.sim),
+            "real": side_json(self.real),
+            "real_twin_aligned": side_json(self.real_twin_aligned),
             "registration": {
                 "joint_angles_rad": [float(a) for a in fit.joint_angles_rad],
                 "T_world_base": self.T_world_base.tolist(),
@@ -168,10 +198,9 @@ class Comparison:
                 "camera_corrections_mm_deg": [list(c) for c in fit.view_corrections],
             },
             "errors": {
-                "sim": self.errors("sim").to_json(),
-                "real": self.errors("real").to_json(),
-                "real_estimated_frame": self.errors("real_estimated_frame").to_json(),
+                **{side: self.errors(side).to_json() for side in SIDES},
                 "joint_angles_deg": None if angles is None else list(angles),
+                "real_joint_angles_deg": _list(self.predicted_angle_errors_deg("real")),
             },
             "sim_recording": str(self.sim_recording),
             "model": self.model,
@@ -180,3 +209,13 @@ class Comparison:
         if self.rrd is not None:
             out["rrd"] = self.rrd
         return out
+
+
+def angle_errors_deg(angles_rad, truth_rad) -> tuple[float, ...]:
+    """|a - b| per joint, wrapped to [0, 180] degrees."""
+    diff = np.asarray(angles_rad, np.float64) - np.asarray(truth_rad, np.float64)
+    return tuple(float(np.degrees(abs((d + np.pi) % (2 * np.pi) - np.pi))) for d in diff)
+
+
+def _list(values) -> list | None:
+    return None if values is None else list(values)

@@ -5,15 +5,20 @@
    table and joint angles (`spare_twin.compare.articulated`).
 3. The twin, posed so, is rendered through the very cameras of the real recording: a simulated
    recording with the same intrinsics, poses and frame count, but no sensor noise.
-4. The same network runs on both recordings through the same path (`predict_recording`), the real
-   views placed by camera poses re-aligned onto the fitted twin, and both predictions are scored
-   against the configuration that was printed.
+4. The same network runs on both recordings through the same path (`predict_recording`) and both
+   predictions are scored against the configuration that was printed. The real side (`real`) is
+   `predict` on the real recording alone, exactly as a user runs it without an object folder.
+5. A diagnostic (`real_twin_aligned`): the network once more on the real recording, its cameras
+   re-aligned onto the fitted printed twin and its base frame taken from the fit. It needs the true
+   object, so it measures what the capture path costs, not what `predict` can do.
 """
 
 from __future__ import annotations
 
 import os
 import sys
+import time
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -23,7 +28,7 @@ from tqdm import tqdm
 from spare_twin import __version__
 from spare_twin.capture.pipeline import fuse_recording, register_recording
 from spare_twin.compare.articulated import ArticulatedFit, FitConfig, fit_articulated, twin_link_meshes
-from spare_twin.compare.depth_fit import DepthScorer, DepthView
+from spare_twin.compare.depth_fit import DepthScorer, DepthView, transformed
 from spare_twin.compare.rerun_log import ComparisonLog, log_comparison
 from spare_twin.compare.result import Comparison, Truth
 from spare_twin.config import COLORS
@@ -31,7 +36,7 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.predict import predict_recording
 from spare_twin.object.folder import ObjectFolder, load_object
-from spare_twin.object.kinematics import forward_kinematics
+from spare_twin.object.kinematics import forward_kinematics, link_lengths_m
 from spare_twin.output import RRD, check_output
 from spare_twin.recording import Camera, Recording, RecordingWriter
 from spare_twin.sim.twin import Twin
@@ -114,24 +119,76 @@ def render_twin_through(
         )
 
 
+#: The fused object must stand at least this share of the printed base's height: lower, the
+#: segmenter kept only a fragment of the chain (thin links fused apart from each other).
+FRAGMENT_HEIGHT_SHARE = 0.8
+#: Scene points this high above the table can belong to the object (the segmenter's cut, metres).
+ABOVE_TABLE_M = 0.008
+#: ... and this far beyond the chain's length from the found object (metres).
+REACH_MARGIN_M = 0.02
+
+
+def object_cloud(real: Recording, obj: ObjectFolder) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(points (N, 3) in the object frame, colours (N, 3), T_world_object) of the registered object.
+
+    The printed base is a vertical post of known height, so an object cloud lower than most of it is
+    a fragment (the segmenter split the thin chain): then the fit gets every scene point above the
+    table within the chain's length of the fragment, which holds the whole chain wherever it lies."""
+    points, colors, T_world_object = fuse_recording(real, object_only=True)
+    T_object_world = np.linalg.inv(T_world_object)
+    cloud = transformed(points, T_object_world)
+    lengths_m = link_lengths_m(obj.spec)
+    if len(cloud) and cloud[:, 2].max() >= FRAGMENT_HEIGHT_SHARE * lengths_m[0]:
+        return cloud, colors, T_world_object
+    scene, scene_colors, _ = fuse_recording(real, object_only=False)
+    scene = transformed(scene, T_object_world)
+    reach = float(lengths_m.sum()) + REACH_MARGIN_M
+    centre = cloud[:, :2].mean(axis=0) if len(cloud) else np.zeros(2)
+    keep = (
+        (scene[:, 2] > ABOVE_TABLE_M) & (scene[:, 2] < reach) & (np.linalg.norm(scene[:, :2] - centre, axis=1) < reach)
+    )
+    print(
+        f"compare: the registered object is {cloud[:, 2].max() if len(cloud) else 0.0:.3f} m high, lower than "
+        f"the printed base ({lengths_m[0]:.3f} m): fitting every point above the table within "
+        f"{reach:.2f} m of it ({int(keep.sum())} points)",
+        file=sys.stderr,
+    )
+    return scene[keep], scene_colors[keep], T_world_object
+
+
 def depth_views(real: Recording, T_object_world: np.ndarray, count: int) -> list[DepthView]:
     """`count` depth frames spread over every posed camera of `real`, posed in the object frame."""
     return [view for _, view in _posed_depth_views(real, T_object_world, count)]
 
 
-def aligned_camera_poses(obj: ObjectFolder, real: Recording, fit: ArticulatedFit, T_world_object: np.ndarray) -> dict:
+def fit_view_keys(real: Recording, count: int) -> list[tuple[str, int]]:
+    """(camera, frame) of each of `depth_views(real, ..., count)`, in its order."""
+    return [key for key, _ in _posed_depth_views(real, np.eye(4), count, read=False)]
+
+
+def aligned_camera_poses(
+    obj: ObjectFolder, real: Recording, fit: ArticulatedFit, T_world_object: np.ndarray, fitted: dict | None = None
+) -> dict:
     """{(camera, frame): T_world_camera} for every posed frame of `real`, re-aligned onto the fitted
     twin (`depth_fit.DepthScorer.align_views`). Whole-frame registration leaves the cameras a few
     millimetres and a degree or two apart; the network's views, fused in its voxel grid, want them
-    consistent with each other."""
+    consistent with each other. `fitted` ({(camera, frame): T_object_camera}) are frames the fit
+    has aligned already (`ArticulatedFit.view_poses`): they are kept, the others aligned here."""
+    fitted = fitted or {}
     keyed = _posed_depth_views(real, np.linalg.inv(T_world_object), real.n_frames)
-    with DepthScorer(obj, [view for _, view in keyed]) as scorer:
-        for _ in range(2):  # the second round takes the last millimetre (as in the fit)
-            scorer.align_views(fit.params)
-        return {key: T_world_object @ view.T_cloud_camera for (key, _), view in zip(keyed, scorer.views)}
+    todo = [(key, view) for key, view in keyed if key not in fitted]
+    out = {key: T_world_object @ T for key, T in fitted.items()}
+    if todo:
+        with DepthScorer(obj, [view for _, view in todo]) as scorer:
+            for _ in range(2):  # the second round takes the last millimetre (as in the fit)
+                scorer.align_views(fit.params)
+            out.update({key: T_world_object @ view.T_cloud_camera for (key, _), view in zip(todo, scorer.views)})
+    return {key: out[key] for key, _ in keyed}
 
 
-def _posed_depth_views(real: Recording, T_object_world: np.ndarray, count: int) -> list:
+def _posed_depth_views(real: Recording, T_object_world: np.ndarray, count: int, read: bool = True) -> list:
+    """[((camera, frame), DepthView)] of `count` frames spread over each posed camera (views None
+    without `read`)."""
     out = []
     for c in real.cameras:
         poses = real.camera_poses(c.name)
@@ -139,7 +196,8 @@ def _posed_depth_views(real: Recording, T_object_world: np.ndarray, count: int) 
             continue
         for f in np.unique(np.linspace(0, real.n_frames - 1, count).round().astype(int)):
             T = T_object_world @ poses[f]
-            out.append(((c.name, int(f)), DepthView(real.depth_m(c.name, int(f)), np.asarray(c.K), T)))
+            view = DepthView(real.depth_m(c.name, int(f)), np.asarray(c.K), T) if read else None
+            out.append(((c.name, int(f)), view))
     return out
 
 
@@ -166,44 +224,69 @@ def compare(
     check_output(sim_dir, SIM_TWIN, inputs, force)
     if rrd is not None:
         check_output(rrd, RRD, (*inputs, sim_dir), force)
+    timings: dict[str, float] = {}
+    clock = _Clock(timings)
     if real.registration is None:
         print("compare: registering the real recording (poses, fusion, object)", file=sys.stderr)
-        register_recording(real.root, find="require", progress=True)
+        with clock("registration"):
+            register_recording(real.root, find="require", progress=True)
         real = Recording.open(real_dir)
-    points, colors, T_world_object = fuse_recording(real, object_only=True)
+    with clock("fusion"):
+        cloud_obj, colors, T_world_object = object_cloud(real, obj)
     T_object_world = np.linalg.inv(T_world_object)
-    cloud_obj = points @ T_object_world[:3, :3].T + T_object_world[:3, 3]
 
     print("compare: fitting the URDF twin to the real cloud", file=sys.stderr)
-    fit = fit_articulated(obj, cloud_obj, views=depth_views(real, T_object_world, cfg.fit_views))
+    with clock("articulated fit"):
+        fit = fit_articulated(obj, cloud_obj, views=depth_views(real, T_object_world, cfg.fit_views))
+    fitted = dict(zip(fit_view_keys(real, cfg.fit_views), fit.view_poses))
     T_world_base = T_world_object @ fit.T_object_base
 
-    render_twin_through(obj, fit.joint_angles_rad, T_world_base, real, sim_dir, cfg, inputs, force)
+    with clock("sim twin"):
+        render_twin_through(obj, fit.joint_angles_rad, T_world_base, real, sim_dir, cfg, inputs, force)
 
     print("compare: running the network on the real and the sim recording", file=sys.stderr)
-    # Both sides in the same object frame: the sim twin stands at its origin by construction, the real
-    # views are placed by the registered base pose. `real_estimated_frame` is what `predict` alone
-    # makes of the recording, with its own frame estimate and yaw hypotheses.
-    sim_pred = predict_recording(sim_dir, model, progress=False)
-    real_pred = predict_recording(
-        real.root,
-        model,
-        progress=False,
-        T_world_base=T_world_base,
-        camera_poses=aligned_camera_poses(obj, real, fit, T_world_object),
-    )
-    own_pred = predict_recording(real.root, model, progress=False)
+    with clock("predict"):
+        # The real side is `predict` on the recording alone: nothing from the object folder or the fit.
+        real_pred = predict_recording(real.root, model, progress=False)
+        # The sim twin stands at its recording's origin by construction.
+        sim_pred = predict_recording(sim_dir, model, progress=False)
+    with clock("twin-aligned diagnostic"):
+        aligned_pred = predict_recording(
+            real.root,
+            model,
+            progress=False,
+            T_world_base=T_world_base,
+            camera_poses=aligned_camera_poses(obj, real, fit, T_world_object, fitted),
+        )
     gt = real.ground_truth()
     truth = Truth(
         obj.spec.n_links,
         tuple(obj.spec.link_lengths_pu),
         None if gt is None else tuple(float(a) for a in np.asarray(gt["joint_angles_rad"])[0]),
     )
-    result = Comparison(truth, sim_pred, real_pred, own_pred, fit, T_world_object, sim_dir, cfg.settings())
+    result = Comparison(truth, sim_pred, real_pred, aligned_pred, fit, T_world_object, sim_dir, cfg.settings())
     if rrd is not None:
-        _write_rrd(rrd, result, obj, cloud_obj, colors, real, Recording.open(sim_dir), cfg, (*inputs, sim_dir), force)
+        with clock("rrd"):
+            _write_rrd(
+                rrd, result, obj, cloud_obj, colors, real, Recording.open(sim_dir), cfg, (*inputs, sim_dir), force
+            )
         result = replace(result, rrd=str(rrd))
-    return result
+    return replace(result, timings_s=timings)
+
+
+class _Clock:
+    """`with clock(stage):` adds the stage's wall-clock seconds to `timings[stage]`."""
+
+    def __init__(self, timings: dict[str, float]):
+        self.timings = timings
+
+    @contextmanager
+    def __call__(self, stage: str):
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.timings[stage] = self.timings.get(stage, 0.0) + time.perf_counter() - t0
 
 
 def _write_rrd(
@@ -238,6 +321,7 @@ def _write_rrd(
             twin_meshes=meshes,
             real_input=result.real.network_input,
             sim_input=result.sim.network_input,
+            real_twin_aligned_input=result.real_twin_aligned.network_input,
             real_rec=real,
             sim_rec=sim,
         ),

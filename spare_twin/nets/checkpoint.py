@@ -119,7 +119,11 @@ def model_card(ck: dict, name: str) -> str:
     """Markdown model card from a checkpoint's configs and metadata."""
     m, net, tr = ck.get("meta", {}), ck["net"], ck["train"]
     metrics = m.get("metrics", {})
-    view = "multi-view (8 views)" if net["mode"] == "mv" else f"temporal ({int(net['frames'])} frames)"
+    view = {
+        "mv": "multi-view (8 views)",
+        "tmp": f"temporal ({int(net['frames'])} frames)",
+        "profile": "the chain's profile from any posed views (docs/observe.md)",
+    }[net["mode"]]
     lines = [
         f"# {name}",
         "",

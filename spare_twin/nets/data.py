@@ -17,6 +17,7 @@ from spare_twin.dataset.synthetic import RIG_NAME, SyntheticDataset, SyntheticOn
 from spare_twin.dataset.torch_data import OnTheFlyDataset, PoseJitter, SpareDataset
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets.presets import NetConfig, TrainConfig
+from spare_twin.nets.profile_samples import ProfileSplit
 from spare_twin.sim.noise import load_noise
 
 
@@ -51,6 +52,13 @@ def open_split(data_dir, split: str, net: NetConfig, augment: TrainConfig | None
     """The map Dataset of one split ("train", "val", "test") for this network's mode and input, with
     the sim-to-real augmentation of `augment` (a TrainConfig) applied at read time."""
     data_dir = _check_dir(data_dir)
+    if net.mode == "profile":
+        if _is_synthetic(data_dir) or not (data_dir / "manifest.json").is_file():
+            raise SpareTwinError(f"data_dir {data_dir}: the profile network needs a spare-twin dataset (depth views)")
+        ds = ProfileSplit(data_dir, split)
+        if len(ds) == 0:
+            raise SpareTwinError(f"data_dir {data_dir}: the {split} split is empty")
+        return ds
     if _is_synthetic(data_dir):
         spec = read_spec(data_dir)
         if (spec.mode, spec.input) != (net.mode, net.input):

@@ -16,6 +16,8 @@ from spare_twin.nets.presets import NetConfig
 
 N_CLASSES = 6
 SLOTS = 7
+#: ProfileNet's convolutions that halve the resolution (64 x 80 -> 8 x 10 with the preset's five).
+PROFILE_STRIDES = (0, 1, 3)
 
 
 class InputNorm(nn.Module):
@@ -229,7 +231,54 @@ class GeoVoxelNet(nn.Module):
         return {k: head(h) for k, head in self.heads.items()}
 
 
+class ProfileNet(nn.Module):
+    """The yaw-free network: the chain's profile image (`spare_twin.observe.profile`, channels x H x W)
+    through a small 2D CNN, then count, 7-slot lengths and joint angles (as sin/cos pairs, so angles
+    near +-pi are not a discontinuity). Position in the image is height and reach in paper units, so
+    the features are flattened, not pooled. One 3x3 convolution per entry of `channels`, halving the
+    resolution at `PROFILE_STRIDES`: about 13 M multiply-adds, a few ms on one CPU thread."""
+
+    def __init__(self, cfg: NetConfig):
+        super().__init__()
+        self.cfg = cfg
+        layers, cin = [], cfg.frames
+        h, w = cfg.height, cfg.width
+        for i, c in enumerate(cfg.channels):
+            stride = 2 if i in PROFILE_STRIDES else 1
+            layers += [
+                nn.Conv2d(cin, c, 3, stride=stride, padding=1, bias=False),
+                nn.BatchNorm2d(c),
+                nn.ReLU(inplace=True),
+            ]
+            cin = c
+            if stride == 2:
+                h, w = (h + 1) // 2, (w + 1) // 2
+        layers += [nn.Conv2d(cin, 32, 1), nn.ReLU(inplace=True)]
+        self.cnn = nn.Sequential(*layers)
+        self.fc = nn.Sequential(
+            nn.Flatten(), nn.Linear(32 * h * w, cfg.fc_hidden), nn.ReLU(inplace=True), nn.Dropout(cfg.dropout)
+        )
+        self.heads = nn.ModuleDict(
+            {"count_logits": nn.Linear(cfg.fc_hidden, N_CLASSES), "lengths": nn.Linear(cfg.fc_hidden, SLOTS)}
+        )
+        with torch.no_grad():
+            self.heads["lengths"].bias.copy_(torch.tensor([1.6, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5]))
+        if cfg.predict_angles:
+            self.heads["angles_sincos"] = nn.Linear(cfg.fc_hidden, 2 * N_CLASSES)
+
+    def forward(self, x, **_):
+        h = self.fc(self.cnn(x))
+        out = {k: head(h) for k, head in self.heads.items()}
+        if "angles_sincos" in out:
+            sc = out.pop("angles_sincos").view(-1, N_CLASSES, 2)
+            out["angles_sincos"] = sc
+            out["angles"] = torch.atan2(sc[..., 0], sc[..., 1])
+        return out
+
+
 def build_model(cfg: NetConfig) -> nn.Module:
+    if cfg.arch == "profile":
+        return ProfileNet(cfg)
     if cfg.arch == "geo_voxel":
         return GeoVoxelNet(cfg)
     if cfg.arch == "conv3d_per_n":

@@ -8,6 +8,7 @@ confident output (largest count probability).
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,9 +19,13 @@ import torch
 from spare_twin.config import MAX_MOVING_LINKS, MIN_MOVING_LINKS
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
+from spare_twin.nets.chain_fit import fit_chain
 from spare_twin.nets.models import decode, model_inputs
 from spare_twin.nets.presets import NetConfig
-from spare_twin.observe.network_input import InputSpec, NetworkInput, observe_recording
+from spare_twin.observe.chain import observe_chain
+from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE, InputSpec, NetworkInput, observe_recording
+from spare_twin.observe.points import rigid
+from spare_twin.recording import Recording
 
 
 @dataclass(frozen=True)
@@ -43,7 +48,14 @@ class Prediction:
     model: str
     recording: str
     network_input: np.ndarray | None = field(default=None, repr=False, compare=False)
-    """(V, H, W) views the network saw for the kept yaw (for logging; not JSON)."""
+    """(V, H, W) views (or the chain's profile) the network saw for the kept yaw (for logging; not JSON)."""
+    reason: str | None = None
+    """Why there is no answer (no chain in view); then `n_links` is None."""
+    timings_s: dict = field(default_factory=dict, compare=False)
+    """Seconds spent in "registration", "observation" and "network" (not JSON: it differs per run)."""
+    T_world_profile: np.ndarray | None = field(default=None, repr=False, compare=False)
+    """The yaw-free network's profile frame (base on the table, x along the chain's plane, z up) in
+    the recording's world, for logging."""
 
     def to_json(self) -> dict:
         out: dict = {
@@ -53,6 +65,8 @@ class Prediction:
         }
         if self.joint_angles_rad is not None:
             out["joint_angles_rad"] = list(self.joint_angles_rad)
+        if self.reason is not None:
+            out["reason"] = self.reason
         out["input"] = self.input
         out["yaw_hypotheses_deg"] = list(self.yaw_hypotheses_deg)
         out["yaw_deg"] = self.yaw_deg
@@ -131,6 +145,8 @@ def predict_recording(
     check_options(frame, print_scale, n_links, yaw_hypotheses, device)
     model_path = model_path or ckpt.default_model("predict")
     model, net, ck = ckpt.load_model(model_path, device)
+    if net.arch == "profile":
+        return _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale, device, progress)
     seen = observe_recording(
         rec_dir,
         input_spec(net),
@@ -175,4 +191,53 @@ def predict_recording(
         model=str(model_path),
         recording=str(rec_dir),
         network_input=batch["x"][best].numpy(),
+    )
+
+
+#: Decimals kept in `predict --json` of the yaw-free network: far below any measurement's precision,
+#: and what makes the output the same bytes on every machine (float reductions differ in the last bits).
+JSON_DECIMALS = 6
+
+
+def _rounded(values) -> tuple[float, ...]:
+    return tuple(round(float(v), JSON_DECIMALS) for v in values)
+
+
+def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale, device, progress) -> Prediction:
+    """The yaw-free network on `observe.chain.observe_chain`'s profile of the recording, its lengths
+    and joint angles then measured on the points (`nets.chain_fit`). The print scale is the flag's or
+    the default: the recording's own object configuration is never read."""
+    rec = Recording.open(rec_dir)
+    scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
+    seen = observe_chain(rec, scale, frame, camera, progress=progress)
+    common = dict(
+        input=f"profile ({seen.source}, {seen.views} views)",
+        yaw_hypotheses_deg=(),
+        yaw_deg=0.0,
+        model=str(model_path),
+        recording=str(rec_dir),
+        network_input=seen.profile.image,
+        T_world_profile=seen.T_world_profile,
+    )
+    if seen.reason is not None:
+        timings = {**seen.timings_s, "network": 0.0}
+        return Prediction(
+            None, None, None, None, reason=f"no chain in view: {seen.reason}", timings_s=timings, **common
+        )
+    t0 = time.perf_counter()
+    x = torch.from_numpy(seen.profile.image[None]).to(device)
+    res = decode(model, net, {"x": x})
+    timings = {**seen.timings_s, "network": round(time.perf_counter() - t0, 4)}
+    n = int(res["pred_n"][0])
+    t1 = time.perf_counter()
+    in_plane = rigid(np.linalg.inv(seen.profile.T_table_profile), seen.object.points_m)[:, [0, 2]]
+    fit = fit_chain(in_plane, res["lengths_e2e"][0, : n + 1].numpy(), res["angles"][0, :n].numpy(), scale)
+    timings["chain_fit"] = round(time.perf_counter() - t1, 3)
+    return Prediction(
+        n_links=n,
+        link_lengths_pu=_rounded(fit.lengths_pu),
+        probabilities=_rounded(res["probabilities"][0]),
+        joint_angles_rad=_rounded(fit.angles_rad),
+        timings_s=timings,
+        **common,
     )

@@ -14,10 +14,10 @@ from dataclasses import dataclass, field
 
 from spare_twin.errors import SpareTwinError
 
-ARCHS = ("conv3d", "cnn_lstm", "conv3d_per_n", "naive", "geo_voxel")
+ARCHS = ("conv3d", "cnn_lstm", "conv3d_per_n", "naive", "geo_voxel", "profile")
 TASKS = ("count", "lengths", "e2e", "multitask")
 INPUTS = ("depth", "grey")
-MODES = ("mv", "tmp")
+MODES = ("mv", "tmp", "profile")
 
 
 @dataclass(frozen=True)
@@ -86,6 +86,10 @@ class NetConfig:
             raise SpareTwinError("net.task: conv3d_per_n regresses lengths with n known (task lengths)")
         if self.arch == "naive" and self.task != "e2e":
             raise SpareTwinError("net.task: the naive counter + regressor combination is an e2e model")
+        if (self.arch == "profile") != (self.mode == "profile"):
+            raise SpareTwinError(
+                "net.mode: the profile network reads the chain's profile (mode profile), and only it does"
+            )
         if self.frames < 1 or self.height < 16 or self.width < 16:
             raise SpareTwinError("net.frames/height/width: too small")
 
@@ -300,6 +304,27 @@ PRESETS: dict[str, Preset] = {
             TrainConfig(epochs=15, batch_size=16, lr=2e-3, samples_per_epoch=4000),
             "the 8 depth views back-projected through the rig's poses into one world-frame voxel grid "
             "(paper units); a small 3D CNN predicts count, 7-slot lengths and joint angles",
+        ),
+        _p(
+            "profile-depth-multitask",
+            NetConfig(
+                "profile",
+                "multitask",
+                "depth",
+                mode="profile",
+                frames=3,
+                height=64,
+                width=80,
+                channels=(24, 32, 48, 64, 64),
+                fc_hidden=256,
+                dropout=0.1,
+                predict_angles=True,
+            ),
+            TrainConfig(epochs=20, batch_size=32, lr=2e-3, angle_weight=2.0, threads=1, workers=2),
+            "yaw-free: any recording's object points (`observe.points`) drawn in the chain's own plane "
+            "(`observe.profile`, 3 channels); a small 2D CNN predicts count, 7-slot lengths and joint angles. "
+            "Trained on rig renders with hand-held-like arcs, fitted sensor noise, registration error, "
+            "clutter and the whole circle of yaw (`nets.profile_train`)",
         ),
         _p(
             "geo-depth-mv-count",

@@ -1,5 +1,7 @@
 """Scene variation for sim-to-real training: rig pose and intrinsics jitter, lighting, link colour
 jitter, table colour and clutter. All of it is drawn from one seeded generator per sequence.
+`sample_clutter` is also the desk of a hand-held render (`render --clutter N`): boxes and cylinders
+clear of the posed object.
 
 With `DomainRandomization()` (all zeros / off, the paper's clean setting) the scene is exactly the
 rig's: nominal poses and K, default lighting, named link colours, a plain table, no clutter.
@@ -16,8 +18,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from spare_twin.config import COLORS, ChainSpec
+from spare_twin.errors import SpareTwinError
 from spare_twin.sim.rig import Rig, jitter_intrinsics, jitter_rig_poses
-from spare_twin.sim.twin import DEFAULT_TABLE_RGBA, Lighting
+from spare_twin.sim.twin import DEFAULT_TABLE_RGBA, Lighting, Twin
 
 
 @dataclass(frozen=True)
@@ -111,18 +114,111 @@ def sample_scene(rig: Rig, spec: ChainSpec, dr: DomainRandomization, rng: np.ran
     table = DEFAULT_TABLE_RGBA
     if dr.table:
         table = tuple(float(v) for v in rng.uniform(0.15, 0.9, size=3).round(4)) + (1.0,)
-    clutter = []
-    for _ in range(int(rng.integers(0, dr.clutter_max + 1)) if dr.clutter_max else 0):
-        # Outside the chain's reach (<= 0.24 m from the base axis, mostly in the x-z plane) and
-        # inside the camera ring (0.42 m), so boxes occlude and clutter but never intersect links.
-        r, a = rng.uniform(0.26, 0.34), rng.uniform(0, 2 * math.pi)
-        half = rng.uniform(0.008, 0.03, size=3).round(4)
-        clutter.append(
-            {
-                "half_extents_m": half.tolist(),
-                "position_m": [round(r * math.cos(a), 4), round(r * math.sin(a), 4), float(half[2])],
-                "rgba": rng.uniform(0.1, 0.95, size=3).round(4).tolist() + [1.0],
-                "yaw_rad": round(float(rng.uniform(0, math.pi)), 4),
-            }
-        )
+    # Outside the chain's reach (<= 0.24 m from the base axis, mostly in the x-z plane) and inside the
+    # camera ring (0.42 m), so boxes occlude and clutter but never intersect links.
+    n_clutter = int(rng.integers(0, dr.clutter_max + 1)) if dr.clutter_max else 0
+    clutter = [_clutter_item(rng, (0.26, 0.34), (0.008, 0.03)) for _ in range(n_clutter)]
     return Scene(poses, K, lighting, link_rgb, table, clutter)
+
+
+# -- table clutter ----------------------------------------------------------------------------------
+CLUTTER_SHAPES = ("box", "cylinder")
+#: Most clutter items one scene takes (more leave no room clear of the object on a 12..35 cm ring).
+MAX_CLUTTER = 8
+
+
+@dataclass(frozen=True)
+class ClutterConfig:
+    """Objects standing on the table round the chain (a hand-held capture's desk), metres."""
+
+    count: int = 0
+    r_min_m: float = 0.12
+    """Nearest any part of an item comes to the base axis."""
+    r_max_m: float = 0.35
+    """Farthest any part of an item reaches from the base axis (inside the camera path's 0.37 m)."""
+    size_min_m: float = 0.02
+    size_max_m: float = 0.12
+    """Range of each full extent (box sides, cylinder diameter and height)."""
+    margin_m: float = 0.02
+    """Least horizontal gap between an item and the chain's footprint or another item."""
+    max_tries: int = 500
+    """Draws per item before giving up (no room)."""
+
+
+def _clutter_item(rng: np.random.Generator, r_range_m, half_range_m, shape: str | None = None) -> dict:
+    """One item at a random place on a ring round the base axis. The draws (radius, azimuth, half
+    extents, colour, yaw) are in the order the dataset's scene randomisation has always used, so its
+    scenes stay byte-identical; `shape` None is the dataset's box (no "shape" key)."""
+    r, a = rng.uniform(*r_range_m), rng.uniform(0, 2 * math.pi)
+    half = rng.uniform(*half_range_m, size=3).round(4)
+    if shape == "cylinder":
+        half[1] = half[0]  # radius = half_extents[0] = half_extents[1], half height = half_extents[2]
+    item = {
+        "half_extents_m": half.tolist(),
+        "position_m": [round(r * math.cos(a), 4), round(r * math.sin(a), 4), float(half[2])],
+        "rgba": rng.uniform(0.1, 0.95, size=3).round(4).tolist() + [1.0],
+        "yaw_rad": round(float(rng.uniform(0, math.pi)), 4),
+    }
+    return item if shape is None else {"shape": shape, **item}
+
+
+def clutter_radius_m(item: dict) -> float:
+    """Radius of the item's horizontal footprint about its centre."""
+    hx, hy = item["half_extents_m"][:2]
+    return float(hx if item.get("shape") == "cylinder" else math.hypot(hx, hy))
+
+
+def _point_segment_distance(p: np.ndarray, segments: np.ndarray) -> np.ndarray:
+    """Distance of the 2-D point `p` to each segment (S, 2, 2)."""
+    a, b = segments[:, 0], segments[:, 1]
+    ab = b - a
+    t = np.clip(((p - a) * ab).sum(1) / np.maximum((ab * ab).sum(1), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(a + t[:, None] * ab - p, axis=1)
+
+
+def sample_clutter(
+    cfg: ClutterConfig, rng: np.random.Generator, footprint_xy_m: np.ndarray, footprint_radius_m: float = 0.0
+) -> list[dict]:
+    """`cfg.count` boxes and cylinders standing on the table, clear of the object and of each other.
+
+    `footprint_xy_m` (S, 2, 2) are the object's footprint segments on the table (e.g. its links'
+    centre lines seen from above, over all frames) and `footprint_radius_m` their half width: every
+    item keeps `margin_m` from them and from the other items, and lies wholly within r_min..r_max of
+    the base axis. Rejection sampling, so a pure function of the generator's state; an error naming
+    `clutter` when there is no room."""
+    footprint = np.asarray(footprint_xy_m, dtype=np.float64).reshape(-1, 2, 2)
+    half_range = (cfg.size_min_m / 2, cfg.size_max_m / 2)
+    items: list[dict] = []
+    for _ in range(cfg.count):
+        for _ in range(cfg.max_tries):
+            shape = CLUTTER_SHAPES[int(rng.integers(len(CLUTTER_SHAPES)))]
+            item = _clutter_item(rng, (cfg.r_min_m, cfg.r_max_m), half_range, shape)
+            c, rad = np.asarray(item["position_m"][:2]), clutter_radius_m(item)
+            r = float(np.linalg.norm(c))
+            if r - rad < cfg.r_min_m or r + rad > cfg.r_max_m:
+                continue
+            if len(footprint) and _point_segment_distance(c, footprint).min() < rad + footprint_radius_m + cfg.margin_m:
+                continue
+            if any(
+                np.linalg.norm(c - np.asarray(o["position_m"][:2])) < rad + clutter_radius_m(o) + cfg.margin_m
+                for o in items
+            ):
+                continue
+            items.append(item)
+            break
+        else:
+            raise SpareTwinError(
+                f"clutter {cfg.count}: no room for item {len(items) + 1} clear of the object on the "
+                f"{cfg.r_min_m * 100:.0f}..{cfg.r_max_m * 100:.0f} cm ring"
+            )
+    return items
+
+
+def add_clutter(twin: Twin, items: list[dict]) -> None:
+    """Put clutter items (from `sample_clutter` or a dataset scene: no "shape" is a box) into the twin."""
+    for item in items:
+        if item.get("shape", "box") == "box":
+            twin.add_box(item["half_extents_m"], item["position_m"], item["rgba"], item["yaw_rad"])
+        else:
+            half = item["half_extents_m"]
+            twin.add_cylinder(half[0], 2 * half[2], item["position_m"], item["rgba"])

@@ -164,6 +164,16 @@ class Twin:
         self._extra.append(b)
         return b
 
+    def add_cylinder(self, radius_m: float, height_m: float, position_m, rgba) -> int:
+        """A static upright cylinder (table clutter) centred at `position_m`; returns its body id."""
+        p = self.p
+        vis = p.createVisualShape(
+            p.GEOM_CYLINDER, radius=radius_m, length=height_m, rgbaColor=list(rgba), physicsClientId=self.cid
+        )
+        b = p.createMultiBody(0, -1, vis, basePosition=list(position_m), physicsClientId=self.cid)
+        self._extra.append(b)
+        return b
+
     def clear_extras(self) -> None:
         for b in self._extra:
             self.p.removeBody(b, physicsClientId=self.cid)

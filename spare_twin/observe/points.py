@@ -1,0 +1,211 @@
+"""The object's points in the table frame, from posed depth views of any source.
+
+This is the one observation every network input is made from. A training-rig render (8 fixed cameras
+at one time step), a hand-held render and an imported real capture all reach it as a list of posed
+depth views (`PosedView`); nothing here asks where they came from:
+
+1. back-project every view (a pixel stride that keeps about `points_per_view` points a view) into
+   the recording's world and merge them on a voxel grid (`voxel_m`), so a 640 x 480 sweep and the
+   rig's 96 x 128 views give clouds of the same density;
+2. the table: the dominant plane (seeded RANSAC over the merged cloud, refined by least squares),
+   its normal turned towards the cameras; the table frame has z up along that normal and z = 0 on
+   the table;
+3. the object: points between `min_height_m` and `max_height_m` above the table, split into
+   connected components on a `cluster_cell_m` grid; the component that stands on the table
+   (lowest point within `max_base_height_m`) nearest the point the cameras look at is the object;
+   everything else (clutter, walls, the table's edge) is dropped.
+
+Everything is numpy with a seeded generator, so the same views give the same points, bit for bit.
+open3d's plane RANSAC and DBSCAN are not used here because their threaded loops do not promise
+that (see docs/capture.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import ndimage
+
+from spare_twin.capture.frames import backproject
+
+
+@dataclass(frozen=True)
+class PosedView:
+    """One depth view with its pose: what every source is reduced to."""
+
+    depth_m: np.ndarray
+    """float32 (H, W) z-depth in metres, 0 = no reading."""
+    K: np.ndarray
+    """(3, 3) intrinsics at H x W."""
+    T_world_camera: np.ndarray
+    """(4, 4) camera-to-world (OpenCV axes)."""
+    rgb: np.ndarray | None = None
+    """uint8 (H, W, 3) colour, when the source has it."""
+
+
+@dataclass(frozen=True)
+class PointsConfig:
+    """How the object is cut out of the views (metres)."""
+
+    points_per_view: int = 20000
+    """Pixels back-projected per view (a stride is chosen to keep about this many)."""
+    max_depth_m: float = 1.5
+    """Readings beyond this are dropped (far, noisy, never the object on a table top)."""
+    voxel_m: float = 0.003
+    """Merge grid: one point per occupied voxel (their mean)."""
+    plane_distance_m: float = 0.006
+    """Table inliers: within this of the plane (sensor noise at arm's length)."""
+    plane_iterations: int = 200
+    plane_sample: int = 5000
+    """RANSAC scores planes on at most this many points (a seeded subset)."""
+    min_height_m: float = 0.008
+    """Lower points are the table (noise, registration blur, the 5 mm foot plate)."""
+    max_height_m: float = 0.5
+    """The printed chains fit a 200 mm bed; nothing on the table that is taller is one."""
+    max_radius_m: float = 0.3
+    """Only points within this of where the cameras look (a chain reaches 14 cm from its base)."""
+    cluster_cell_m: float = 0.01
+    """Connected components on this grid (26-neighbourhood): clutter a cell apart is separate."""
+    min_cluster_points: int = 30
+    max_base_height_m: float = 0.03
+    """The object's lowest point must be this close to the table: it stands on it."""
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class ObjectPoints:
+    """The observation: the object's points in the table frame, or why there are none."""
+
+    points_m: np.ndarray
+    """float64 (N, 3) table frame: z up, table at z = 0, origin below where the cameras look."""
+    colors: np.ndarray | None
+    """float32 (N, 3) RGB in [0, 1], when the views had colour."""
+    T_world_table: np.ndarray
+    """(4, 4) table frame to the views' world."""
+    scene_points: int
+    """Merged points before the table and the clutter were removed."""
+    reason: str | None = None
+    """Why no object was found (then `points_m` is empty)."""
+
+
+def rigid(T: np.ndarray, p: np.ndarray) -> np.ndarray:
+    return p @ T[:3, :3].T + T[:3, 3]
+
+
+def merged_cloud(views: list[PosedView], cfg: PointsConfig) -> tuple[np.ndarray, np.ndarray | None]:
+    """All views in the world, one point (the mean) per `voxel_m` voxel, in a fixed order."""
+    pts, cols = [], []
+    for v in views:
+        h, w = v.depth_m.shape
+        stride = max(1, int(round(np.sqrt(h * w / cfg.points_per_view))))
+        depth = v.depth_m[::stride, ::stride]
+        depth = np.where(depth < cfg.max_depth_m, depth, 0.0)
+        K = np.asarray(v.K, np.float64).copy()
+        K[:2] /= stride
+        K[0, 2] += (1.0 / stride - 1) / 2  # pixel centres of the strided grid
+        K[1, 2] += (1.0 / stride - 1) / 2
+        pts.append(rigid(np.asarray(v.T_world_camera, np.float64), backproject(depth, K)))
+        if v.rgb is not None:
+            cols.append(v.rgb[::stride, ::stride][depth > 0].astype(np.float32) / 255.0)
+    points = np.concatenate(pts) if pts else np.zeros((0, 3))
+    colors = np.concatenate(cols) if len(cols) == len(views) and cols else None
+    if len(points) == 0:
+        return points, colors
+    cells = np.floor(points / cfg.voxel_m).astype(np.int64)
+    cells -= cells.min(0)
+    span = cells.max(0) + 1
+    keys = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]  # one int64 per voxel: a 1-D unique
+    _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    mean = np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], 1) / counts[:, None]
+    if colors is not None:
+        colors = (np.stack([np.bincount(inverse, colors[:, k]) for k in range(3)], 1) / counts[:, None]).astype(
+            np.float32
+        )
+    return mean, colors
+
+
+def table_plane(points: np.ndarray, camera_centers: np.ndarray, cfg: PointsConfig) -> np.ndarray:
+    """(a, b, c, d), unit normal towards the cameras: the plane with the most inliers (seeded RANSAC),
+    refined by a least-squares fit to its inliers."""
+    rng = np.random.default_rng(cfg.seed)
+    sample = points if len(points) <= cfg.plane_sample else points[rng.choice(len(points), cfg.plane_sample, False)]
+    tri = sample[rng.integers(0, len(sample), (cfg.plane_iterations, 3))]
+    normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    norm = np.linalg.norm(normals, axis=1)
+    ok = norm > 1e-9
+    normals = normals[ok] / norm[ok, None]
+    offsets = -np.einsum("ij,ij->i", normals, tri[ok, 0])
+    inliers = np.abs(sample @ normals.T + offsets) < cfg.plane_distance_m
+    best = int(inliers.sum(0).argmax())
+    on = sample[inliers[:, best]]
+    centre = on.mean(0)
+    normal = np.linalg.svd(on - centre, full_matrices=False)[2][-1]
+    plane = np.append(normal, -normal @ centre)
+    if np.mean(camera_centers @ plane[:3] + plane[3]) < 0:
+        plane = -plane
+    return plane
+
+
+def view_target(views: list[PosedView], plane: np.ndarray) -> np.ndarray:
+    """The point on the table nearest to every camera's optical axis (least squares): where the
+    cameras look, i.e. where the object is."""
+    A, b = np.zeros((3, 3)), np.zeros(3)
+    for v in views:
+        c, d = v.T_world_camera[:3, 3], v.T_world_camera[:3, 2]
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ c
+    n = plane[:3]
+    A += 1e-3 * np.outer(n, n)  # one camera: the axis meets the table there
+    target = np.linalg.solve(A, b + 1e-3 * n * -plane[3])
+    return target - (target @ n + plane[3]) * n
+
+
+def table_frame(plane: np.ndarray, origin: np.ndarray) -> np.ndarray:
+    """4x4 table frame to world: z = the plane's normal, x = world x projected onto the table."""
+    z = plane[:3]
+    x = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    x = x - (x @ z) * z
+    x /= np.linalg.norm(x)
+    T = np.eye(4)
+    T[:3, :3] = np.stack([x, np.cross(z, x), z], axis=1)
+    T[:3, 3] = origin
+    return T
+
+
+def _empty(T: np.ndarray, scene: int, reason: str) -> ObjectPoints:
+    return ObjectPoints(np.zeros((0, 3)), None, T, scene, reason)
+
+
+def object_points(views: list[PosedView], cfg: PointsConfig = PointsConfig()) -> ObjectPoints:
+    """The object standing on the table in the views' world (see the module doc), in the table frame."""
+    points, colors = merged_cloud(views, cfg)
+    if len(points) < 100:
+        return _empty(np.eye(4), len(points), f"the depth views hold only {len(points)} points")
+    plane = table_plane(points, np.stack([v.T_world_camera[:3, 3] for v in views]), cfg)
+    T_world_table = table_frame(plane, view_target(views, plane))
+    local = rigid(np.linalg.inv(T_world_table), points)
+    radius = np.linalg.norm(local[:, :2], axis=1)
+    above = (local[:, 2] > cfg.min_height_m) & (local[:, 2] < cfg.max_height_m) & (radius < cfg.max_radius_m)
+    if above.sum() < cfg.min_cluster_points:
+        return _empty(T_world_table, len(points), "nothing stands on the table where the cameras look")
+    idx = np.flatnonzero(above)
+    cells = np.floor(local[idx] / cfg.cluster_cell_m).astype(np.int64)
+    cells -= cells.min(0)
+    grid = np.zeros(cells.max(0) + 1, bool)
+    grid[tuple(cells.T)] = True
+    labels, n_labels = ndimage.label(grid, structure=np.ones((3, 3, 3), bool))
+    point_label = labels[tuple(cells.T)]
+    best, best_score = None, -1.0
+    for lab in range(1, n_labels + 1):
+        members = idx[point_label == lab]
+        if len(members) < cfg.min_cluster_points or local[members, 2].min() > cfg.max_base_height_m:
+            continue  # too small, or floating: not standing on the table
+        dist = np.linalg.norm(np.median(local[members, :2], axis=0))
+        score = len(members) / (1.0 + dist / 0.1)
+        if score > best_score:
+            best, best_score = members, score
+    if best is None:
+        return _empty(T_world_table, len(points), "nothing stands on the table where the cameras look")
+    return ObjectPoints(local[best], None if colors is None else colors[best], T_world_table, len(points), reason=None)

@@ -1,0 +1,143 @@
+"""The observation stage measured: object points in the table frame, the chain's plane, yaw freedom,
+clutter and empty scenes, determinism (spare_twin.observe.points / profile / chain)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from spare_twin.observe.chain import observe_chain
+from spare_twin.observe.points import PosedView, object_points
+from spare_twin.observe.profile import chain_profile
+from spare_twin.recording import Recording
+
+PRINT_SCALE = 0.08
+
+
+@pytest.fixture(scope="module")
+def rig_rec(printed_object, tmp_path_factory):
+    """The 2-link object in the training rig, 3 frames at the network's resolution."""
+    from spare_twin.cli import main
+
+    out = tmp_path_factory.mktemp("observe") / "rig"
+    assert (
+        main(["render", str(printed_object.root), "--out", str(out), "--frames", "3", "--resolution", "network"]) == 0
+    )
+    return Recording.open(out)
+
+
+def _views(rec: Recording, frame: int, G: np.ndarray | None = None) -> list[PosedView]:
+    G = np.eye(4) if G is None else G
+    return [PosedView(rec.depth_m(c.name, frame), c.K, G @ rec.T_world_camera(c.name, frame)) for c in rec.cameras]
+
+
+def _yaw(angle_rad: float, shift=(0.0, 0.0)) -> np.ndarray:
+    G = np.eye(4)
+    G[:2, :2] = [[math.cos(angle_rad), -math.sin(angle_rad)], [math.sin(angle_rad), math.cos(angle_rad)]]
+    G[:2, 3] = shift
+    return G
+
+
+def test_object_points_are_the_chain_above_the_table(rig_rec):
+    obj = object_points(_views(rig_rec, 1))
+    assert obj.reason is None
+    p = obj.points_m
+    assert len(p) > 200
+    # the table is gone, the object stands on it, and nothing is farther than the chain reaches
+    assert p[:, 2].min() >= 0.008 - 1e-9 and p[:, 2].min() < 0.02
+    spec = rig_rec.object_config
+    total_m = sum(spec["link_lengths_m"]) * spec["print_scale"]
+    assert p[:, 2].max() < total_m + 0.02
+    # the sim world's table is z = 0: the fitted table frame is level with it
+    assert abs(obj.T_world_table[2, 2]) > math.cos(math.radians(0.5))
+    assert abs(obj.T_world_table[2, 3]) < 0.002
+
+
+def test_profile_finds_the_chain_plane_and_its_sign(rig_rec):
+    gt = rig_rec.ground_truth()
+    for frame in range(rig_rec.n_frames):
+        seen = observe_chain(rig_rec, PRINT_SCALE, frame=frame)
+        assert seen.reason is None and seen.source == "cameras" and seen.views == 8
+        x_base = gt["T_world_link"][frame, 0][:3, 0]
+        x_profile = seen.T_world_profile[:3, 0]
+        # the layer order gives the sign: the profile's x is the base link's x, not just parallel to it
+        assert seen.profile.sign_known
+        assert math.degrees(math.acos(np.clip(x_profile @ x_base, -1, 1))) < 2.0
+        # the base axis: within a few millimetres of the base link's origin
+        assert np.linalg.norm(seen.T_world_profile[:2, 3] - gt["T_world_link"][frame, 0][:2, 3]) < 0.006
+
+
+@pytest.mark.parametrize("yaw_deg", [37.0, 160.0, 275.0])
+def test_profile_is_the_same_whatever_the_yaw(rig_rec, yaw_deg):
+    """Turning and shifting the whole world (object, table, cameras) leaves the profile as it was and
+    moves its frame with the world: nothing assumes a yaw."""
+    ref = chain_profile(object_points(_views(rig_rec, 1)), PRINT_SCALE)
+    G = _yaw(math.radians(yaw_deg), (0.03, -0.02))
+    obj = object_points(_views(rig_rec, 1, G))
+    turned = chain_profile(obj, PRINT_SCALE)
+    a, b = ref.image[0] > 0, turned.image[0] > 0
+    # the same profile, or its mirror where the layer order (the sign of the plane) was not readable
+    iou = max((a & m).sum() / (a | m).sum() for m in (b, b[:, ::-1]))
+    assert iou > 0.6
+    x_ref = ref.T_table_profile[:3, 0]
+    x_turned = np.linalg.inv(G)[:3, :3] @ (obj.T_world_table @ turned.T_table_profile)[:3, 0]
+    assert abs(x_ref @ x_turned) > math.cos(math.radians(2.0))
+
+
+def test_clutter_beside_the_chain_is_removed(rig_rec):
+    """A box standing on the table 20 cm from the chain (drawn into one view's depth) is not part of
+    the object."""
+    views = _views(rig_rec, 1)
+    clean = object_points(views)
+    v = views[0]
+    # a 6 x 6 x 8 cm box 20 cm from the base, seen by camera 0: draw it by ray casting its faces
+    box_lo, box_hi = np.array([0.17, -0.03, 0.0]), np.array([0.23, 0.03, 0.08])
+    T_cw = np.linalg.inv(v.T_world_camera)
+    h, w = v.depth_m.shape
+    uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+    rays_c = np.stack([(uu - v.K[0, 2]) / v.K[0, 0], (vv - v.K[1, 2]) / v.K[1, 1], np.ones_like(uu, float)], -1)
+    origin = v.T_world_camera[:3, 3]
+    rays_w = rays_c @ v.T_world_camera[:3, :3].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t0, t1 = (box_lo - origin) / rays_w, (box_hi - origin) / rays_w
+    t_near = np.minimum(t0, t1).max(-1)
+    t_far = np.maximum(t0, t1).min(-1)
+    hit = (t_near < t_far) & (t_near > 0)
+    depth = v.depth_m.copy()
+    box_depth = np.where(hit, t_near, np.inf).astype(np.float32)  # z of the hit in camera frame = t (rays_c z = 1)
+    closer = hit & ((depth == 0) | (box_depth < depth))
+    assert closer.sum() > 20, "the box must be in view"
+    depth[closer] = box_depth[closer]
+    cluttered = object_points([PosedView(depth, v.K, v.T_world_camera), *views[1:]])
+    assert cluttered.reason is None
+    assert np.linalg.norm(cluttered.points_m[:, :2] - [0.2, 0.0], axis=1).min() > 0.05 or (
+        len(cluttered.points_m) == len(clean.points_m)
+    )
+    assert abs(len(cluttered.points_m) - len(clean.points_m)) <= 0.02 * len(clean.points_m)
+    _ = T_cw
+
+
+def test_an_empty_table_has_no_chain(rig_rec):
+    """The rig's views with the chain cut away (depth replaced by the table plane) give a reason, not a chain."""
+    views = []
+    for v in _views(rig_rec, 1):
+        h, w = v.depth_m.shape
+        uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+        rays_w = np.stack([(uu - v.K[0, 2]) / v.K[0, 0], (vv - v.K[1, 2]) / v.K[1, 1], np.ones((h, w))], -1)
+        rays_w = rays_w @ v.T_world_camera[:3, :3].T
+        t = -v.T_world_camera[2, 3] / rays_w[..., 2]  # the plane z = 0
+        views.append(PosedView(np.where(t > 0, t, 0).astype(np.float32), v.K, v.T_world_camera))
+    obj = object_points(views)
+    prof = chain_profile(obj, PRINT_SCALE)
+    assert obj.reason is not None and prof.reason == obj.reason
+    assert not prof.image.any()
+
+
+def test_observation_is_deterministic(rig_rec):
+    a = observe_chain(rig_rec, PRINT_SCALE, frame=2)
+    b = observe_chain(rig_rec, PRINT_SCALE, frame=2)
+    assert np.array_equal(a.object.points_m, b.object.points_m)
+    assert np.array_equal(a.profile.image, b.profile.image)
+    assert np.array_equal(a.T_world_profile, b.T_world_profile)
