@@ -52,6 +52,9 @@ ALIGN_DISTANCES_M = (0.01, 0.004)
 #: roll and pitch: a coarser sampling holds as well and costs a quarter).
 ALIGN_ITERATIONS = 20
 ALIGN_TABLE_VOXEL_M = 0.006
+#: ... and the radius round the base within which the table takes part (metres; the object's
+#: points take part out to its reach).
+ALIGN_TABLE_RADIUS_M = 0.12
 #: A view whose ICP overlaps less than this, or moves further than these, keeps its pose.
 ALIGN_MIN_FITNESS = 0.3
 ALIGN_MAX_SHIFT_M, ALIGN_MAX_TURN_DEG = 0.02, 5.0
@@ -439,7 +442,7 @@ class DepthScorer:
         import open3d as o3d
 
         reg = o3d.pipelines.registration
-        table = _table_patch(params[:2], reach_m)
+        table = _table_patch(params[:2], min(reach_m, ALIGN_TABLE_RADIUS_M))
         aligned, shifts = [], []
         for i, v in enumerate(self.views):
             twin_points = self.twin_points(params, v)
@@ -496,11 +499,13 @@ def _to_cloud(points_camera: np.ndarray, T_cloud_camera: np.ndarray) -> np.ndarr
 
 def _observed_near(observed: np.ndarray, centre_xy: np.ndarray, radius_m: float):
     """Observed points within `radius_m` of `centre_xy` as an open3d cloud: the object's at
-    ALIGN_VOXEL_M, the table's at the coarser ALIGN_TABLE_VOXEL_M."""
+    ALIGN_VOXEL_M, the table's (within ALIGN_TABLE_RADIUS_M) at the coarser ALIGN_TABLE_VOXEL_M."""
     import open3d as o3d
 
-    observed = observed[np.linalg.norm(observed[:, :2] - centre_xy, axis=1) < radius_m]
+    distance = np.linalg.norm(observed[:, :2] - centre_xy, axis=1)
     above = observed[:, 2] > OBJECT_HEIGHT_M
+    keep = np.where(above, distance < radius_m, distance < min(radius_m, ALIGN_TABLE_RADIUS_M))
+    observed, above = observed[keep], above[keep]
     source = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(observed[above])).voxel_down_sample(ALIGN_VOXEL_M)
     source += o3d.geometry.PointCloud(o3d.utility.Vector3dVector(observed[~above])).voxel_down_sample(
         ALIGN_TABLE_VOXEL_M
