@@ -70,7 +70,7 @@ from spare_twin.sim.render import RenderConfig, render_recording
 from spare_twin.sim.scene import MAX_CLUTTER
 
 #: What a batch keeps of each comparison in its table.
-INSTANCE_KEYS = ("name", "truth", "sim", "real", "real_estimated_frame", "errors")
+INSTANCE_KEYS = ("name", "truth", "sim", "real", "real_twin_aligned", "errors")
 
 
 def pairs_in(root: str | Path) -> list[Path]:

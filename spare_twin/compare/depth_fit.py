@@ -294,11 +294,10 @@ class DepthScorer:
     decimated image keeps). Only the pixels that can count are cast: those that observed an object
     point, and those inside the image rectangles of the posed links' bounding boxes."""
 
-    def __init__(self, obj: ObjectFolder, views: list[DepthView], stride: int = 2, caster: TwinCaster | None = None):
+    def __init__(self, obj: ObjectFolder, views: list[DepthView], stride: int = 2):
         self.obj = obj
         self.stride = stride
-        self.caster = caster or TwinCaster(obj)
-        """The twin's meshes (another scorer's may be shared: they never change)."""
+        self.caster = TwinCaster(obj)
         self.set_views(views)
 
     def set_views(self, views: list[DepthView]) -> None:
