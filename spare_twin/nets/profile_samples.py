@@ -141,6 +141,22 @@ def rig_sample(
     return Sample(profile, int(n_links), np.asarray(lengths_label, np.float32).reshape(7), angles)
 
 
+def stored_sample(f: h5py.File, t: int, aug: CaptureAugment | None, rng: np.random.Generator | None) -> Sample:
+    """`rig_sample` of time step `t` of an open dataset sequence (`spare_twin.dataset.store`)."""
+    return rig_sample(
+        f["depth"][:, t].astype(np.float32) * np.float32(f.attrs["depth_scale"]),
+        f["K"][()],
+        f["T_world_camera"][()],
+        f["T_world_link"][t, 0],
+        f["joint_angles_rad"][t],
+        int(f.attrs["n_links"]),
+        f["lengths_label_m"][()],
+        float(f.attrs["print_scale"]),
+        aug,
+        rng,
+    )
+
+
 class ProfileSplit(Dataset):
     """A stored dataset split as the profile network's test samples: one per (sequence, time step),
     the rig's views as they are, observed like any recording (`rig_sample` with no augmentation).
@@ -169,24 +185,10 @@ class ProfileSplit(Dataset):
     def __getitem__(self, i: int) -> dict:
         if not 0 <= i < len(self):
             raise IndexError(i)
-        f, t = self._file(self.rows[i // self.T]), i % self.T
-        depth = f["depth"][:, t].astype(np.float32) * np.float32(f.attrs["depth_scale"])
-        n = int(f.attrs["n_links"])
-        s = rig_sample(
-            depth,
-            f["K"][()],
-            f["T_world_camera"][()],
-            f["T_world_link"][t, 0],
-            f["joint_angles_rad"][t],
-            n,
-            f["lengths_label_m"][()],
-            float(f.attrs["print_scale"]),
-            None,
-            None,
-        )
+        s = stored_sample(self._file(self.rows[i // self.T]), i % self.T, None, None)
         return {
             "x": torch.from_numpy(s.profile.image),
-            "n_links": torch.tensor(n, dtype=torch.int64),
+            "n_links": torch.tensor(s.n_links, dtype=torch.int64),
             "lengths_pu": torch.from_numpy(s.lengths_pu),
             "joint_angles_rad": torch.from_numpy(s.angles_rad),
         }

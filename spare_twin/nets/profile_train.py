@@ -31,7 +31,7 @@ from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.models import build_model, decode
 from spare_twin.nets.presets import Preset
-from spare_twin.nets.profile_samples import CaptureAugment, rig_sample
+from spare_twin.nets.profile_samples import CaptureAugment, stored_sample
 from spare_twin.output import writing
 from spare_twin.recording import npz_bytes
 
@@ -40,18 +40,11 @@ def _sequence_samples(job: tuple) -> dict:
     """Every sample of one sequence (runs in a worker process)."""
     path, seed, dataset_seed, index, times, variants, augment = job
     out = {"x": [], "n": [], "lengths": [], "angles": [], "rejected": 0}
+    aug = CaptureAugment() if augment else None
     with h5py.File(path, "r") as f:
-        n = int(f.attrs["n_links"])
-        scale, ds = float(f.attrs["print_scale"]), float(f.attrs["depth_scale"])
-        K, T_wc = f["K"][()], f["T_world_camera"][()]
-        label = f["lengths_label_m"][()]
-        T_link, joints = f["T_world_link"], f["joint_angles_rad"]
         for t in times:
-            depth = f["depth"][:, t].astype(np.float32) * np.float32(ds)
             for v in range(variants):
-                rng = np.random.default_rng([seed, dataset_seed, index, t, v])
-                aug = CaptureAugment() if augment else None
-                s = rig_sample(depth, K, T_wc, T_link[t, 0], joints[t], n, label, scale, aug, rng)
+                s = stored_sample(f, t, aug, np.random.default_rng([seed, dataset_seed, index, t, v]))
                 if s.profile.reason is not None:
                     out["rejected"] += 1
                     continue
@@ -199,7 +192,7 @@ def _train_profile(preset, data_dirs, out_dir: Path, variants, workers, command,
     x_all = torch.from_numpy(train["x"].astype(np.float32))
     n_all, len_all = torch.from_numpy(train["n"]), torch.from_numpy(train["lengths"])
     ang_all = torch.from_numpy(train["angles"])
-    history, best, best_score = [], None, -math.inf
+    history, best, best_score, best_epoch = [], None, -math.inf, 0
     t1 = time.perf_counter()
     gen = torch.Generator().manual_seed(tr.seed)
     for epoch in range(tr.epochs):
@@ -230,7 +223,8 @@ def _train_profile(preset, data_dirs, out_dir: Path, variants, workers, command,
         history.append(row)
         score = row["val_count_accuracy"] - row["val_E_L"]
         if score > best_score:
-            best_score, best = score, {k: v.detach().clone() for k, v in model.state_dict().items()}
+            best_score, best_epoch = score, epoch + 1
+            best = {k: v.detach().clone() for k, v in model.state_dict().items()}
         print(json.dumps(row), file=sys.stderr)
     model.load_state_dict(best)
     train_s = time.perf_counter() - t1
@@ -249,10 +243,9 @@ def _train_profile(preset, data_dirs, out_dir: Path, variants, workers, command,
     )
     ckpt.save(out_dir / "model.pt", ckpt.model_record(preset.name, net, tr, model, meta))
     write_json_atomic(out_dir / "history.json", {"history": history, "meta": meta})
-    best_row = max(history, key=lambda r: r["val_count_accuracy"] - r["val_E_L"])
     return {
         "model": str(out_dir / "model.pt"),
-        "best_epoch": best_row["epoch"],
+        "best_epoch": best_epoch,
         "train_time_s": train_s,
         "learning_curve": str(out_dir / "history.json"),
         "history": history,
