@@ -19,12 +19,12 @@ import torch
 from spare_twin.config import MAX_MOVING_LINKS, MIN_MOVING_LINKS
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
-from spare_twin.nets.chain_fit import fit_chain
+from spare_twin.nets.measured import measurement_slots, overrule
 from spare_twin.nets.models import decode, model_inputs
 from spare_twin.nets.presets import NetConfig
 from spare_twin.observe.chain import observe_chain
+from spare_twin.observe.layers import measure_profile
 from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE, InputSpec, NetworkInput, observe_recording
-from spare_twin.observe.points import rigid
 from spare_twin.recording import Recording
 
 
@@ -204,9 +204,10 @@ def _rounded(values) -> tuple[float, ...]:
 
 
 def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale, device, progress) -> Prediction:
-    """The yaw-free network on `observe.chain.observe_chain`'s profile of the recording, its lengths
-    and joint angles then measured on the points (`nets.chain_fit`). The print scale is the flag's or
-    the default: the recording's own object configuration is never read."""
+    """The yaw-free network on `observe.chain.observe_chain`'s profile of the recording, overruled by
+    the chain measured on the points layer by layer (`observe.layers`, `nets.measured`) wherever that
+    finds one. The print scale is the flag's or the default: the recording's own object
+    configuration is never read."""
     rec = Recording.open(rec_dir)
     scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
     seen = observe_chain(rec, scale, frame, camera, progress=progress)
@@ -228,16 +229,16 @@ def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale
     x = torch.from_numpy(seen.profile.image[None]).to(device)
     res = decode(model, net, {"x": x})
     timings = {**seen.timings_s, "network": round(time.perf_counter() - t0, 4)}
-    n = int(res["pred_n"][0])
     t1 = time.perf_counter()
-    in_plane = rigid(np.linalg.inv(seen.profile.T_table_profile), seen.object.points_m)[:, [0, 2]]
-    fit = fit_chain(in_plane, res["lengths_e2e"][0, : n + 1].numpy(), res["angles"][0, :n].numpy(), scale)
-    timings["chain_fit"] = round(time.perf_counter() - t1, 3)
+    slots = measurement_slots(measure_profile(seen.object, seen.profile, scale))
+    res = overrule(res, {k: torch.as_tensor(v)[None] for k, v in slots.items()})
+    timings["measurement"] = round(time.perf_counter() - t1, 3)
+    n = int(res["pred_n"][0])
     return Prediction(
         n_links=n,
-        link_lengths_pu=_rounded(fit.lengths_pu),
+        link_lengths_pu=_rounded(res["lengths_e2e"][0, : n + 1]),
         probabilities=_rounded(res["probabilities"][0]),
-        joint_angles_rad=_rounded(fit.angles_rad),
+        joint_angles_rad=_rounded(res["angles"][0, :n]),
         timings_s=timings,
         **common,
     )

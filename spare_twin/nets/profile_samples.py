@@ -13,7 +13,7 @@ step and turns it into what a hand-held capture of a printed object gives `predi
   must be found again, by the same code as for a real capture);
 - clutter, where the dataset rendered it (`spare-twin dataset --sim2real`): the segmentation removes it.
 
-Then exactly the `predict` path: `observe.points.object_points` and `observe.profile.chain_profile`.
+Then exactly the `predict` path: `observe.chain.find_chain` (the points and the profile of the chain on the table).
 Labels: the count, the 7-slot lengths (paper units) and the joint angles with the sign of the profile
 frame the observation chose (its x against the base link's x), so an observation that read the
 layer order wrongly teaches the network nothing false.
@@ -35,8 +35,11 @@ import torch
 from torch.utils.data import Dataset
 
 from spare_twin.config import MAX_MOVING_LINKS
-from spare_twin.observe.points import PosedView, object_points
-from spare_twin.observe.profile import ChainProfile, chain_profile
+from spare_twin.nets.measured import measurement_slots
+from spare_twin.observe.chain import find_chain
+from spare_twin.observe.layers import LayerMeasurement, measure_profile
+from spare_twin.observe.points import PosedView
+from spare_twin.observe.profile import ChainProfile
 from spare_twin.sim.noise import load_noise
 
 
@@ -112,6 +115,8 @@ class Sample:
     """float32 (7,): the paper's 7-slot label."""
     angles_rad: np.ndarray
     """float32 (6,): joint angles in the profile frame's sign, 0 past the last joint."""
+    measurement: LayerMeasurement | None = None
+    """The chain measured on the points (`observe.layers`), when asked for."""
 
 
 def rig_sample(
@@ -125,23 +130,27 @@ def rig_sample(
     print_scale: float,
     aug: CaptureAugment | None,
     rng: np.random.Generator | None,
+    measure: bool = False,
 ) -> Sample:
-    """The sample of one rig time step; `aug` None: the rig's views as they are (the in-rig test)."""
+    """The sample of one rig time step; `aug` None: the rig's views as they are (the in-rig test);
+    `measure`: with `predict`'s measurement of the chain on the points."""
     if aug is None:
         views, G = [PosedView(d, k, T) for d, k, T in zip(depth_m, K, T_world_camera)], np.eye(4)
     else:
         views, G = augmented_views(depth_m, K, T_world_camera, aug, rng)
-    obj = object_points(views)
-    profile = chain_profile(obj, print_scale)
+    obj, profile = find_chain(views, print_scale)
     x_profile = (obj.T_world_table @ profile.T_table_profile)[:3, 0]
     x_base = (G @ T_world_base)[:3, 0]
     sign = 1.0 if x_profile @ x_base >= 0 else -1.0
     angles = np.zeros(MAX_MOVING_LINKS, np.float32)
     angles[:n_links] = sign * np.asarray(joints_rad[:n_links], np.float64)
-    return Sample(profile, int(n_links), np.asarray(lengths_label, np.float32).reshape(7), angles)
+    measurement = measure_profile(obj, profile, print_scale) if measure else None
+    return Sample(profile, int(n_links), np.asarray(lengths_label, np.float32).reshape(7), angles, measurement)
 
 
-def stored_sample(f: h5py.File, t: int, aug: CaptureAugment | None, rng: np.random.Generator | None) -> Sample:
+def stored_sample(
+    f: h5py.File, t: int, aug: CaptureAugment | None, rng: np.random.Generator | None, measure: bool = False
+) -> Sample:
     """`rig_sample` of time step `t` of an open dataset sequence (`spare_twin.dataset.store`)."""
     return rig_sample(
         f["depth"][:, t].astype(np.float32) * np.float32(f.attrs["depth_scale"]),
@@ -154,12 +163,14 @@ def stored_sample(f: h5py.File, t: int, aug: CaptureAugment | None, rng: np.rand
         float(f.attrs["print_scale"]),
         aug,
         rng,
+        measure,
     )
 
 
 class ProfileSplit(Dataset):
     """A stored dataset split as the profile network's test samples: one per (sequence, time step),
-    the rig's views as they are, observed like any recording (`rig_sample` with no augmentation).
+    the rig's views as they are, observed and measured like any recording (`rig_sample` with no
+    augmentation; `nets.measured` overrules the network with the measurement, as in `predict`).
     Items follow docs/design.md's sample layout with x = the profile image (C, H, W); a time step in
     which the observation finds no chain gets an all-zero image (the network then answers from
     nothing, and the metrics count it)."""
@@ -185,10 +196,11 @@ class ProfileSplit(Dataset):
     def __getitem__(self, i: int) -> dict:
         if not 0 <= i < len(self):
             raise IndexError(i)
-        s = stored_sample(self._file(self.rows[i // self.T]), i % self.T, None, None)
+        s = stored_sample(self._file(self.rows[i // self.T]), i % self.T, None, None, measure=True)
         return {
             "x": torch.from_numpy(s.profile.image),
             "n_links": torch.tensor(s.n_links, dtype=torch.int64),
             "lengths_pu": torch.from_numpy(s.lengths_pu),
             "joint_angles_rad": torch.from_numpy(s.angles_rad),
+            **{k: torch.as_tensor(v) for k, v in measurement_slots(s.measurement).items()},
         }

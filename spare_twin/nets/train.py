@@ -33,6 +33,7 @@ from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.data import dataset_rig, open_on_the_fly, open_split
 from spare_twin.nets.distributed import Group, session
+from spare_twin.nets.measured import overrule
 from spare_twin.nets.models import build_model, decode, input_norms, model_inputs
 from spare_twin.nets.presets import NetConfig, Preset, TrainConfig
 from spare_twin.output import writing
@@ -96,6 +97,8 @@ def run_inference(
     for batch in tqdm(loader, desc=desc, leave=False, file=sys.stderr, disable=not progress):
         n = batch["n_links"].to(device)
         res = decode(model, net, model_inputs(batch, device), true_n=n)
+        if "measured_n" in batch:  # the profile network's samples: predict's answer, measurement first
+            res = overrule(res, batch)
         res["true_n"] = n
         res["true_lengths"] = batch["lengths_pu"]
         for k, v in res.items():

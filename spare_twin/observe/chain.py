@@ -24,7 +24,7 @@ import numpy as np
 from spare_twin.capture.frames import load_frames
 from spare_twin.capture.registration import RegistrationConfig, register_frames
 from spare_twin.errors import SpareTwinError
-from spare_twin.observe.points import ObjectPoints, PointsConfig, PosedView, object_points
+from spare_twin.observe.points import ObjectPoints, PointsConfig, PosedView, object_candidates
 from spare_twin.observe.profile import ChainProfile, ProfileConfig, chain_profile
 from spare_twin.recording import Recording
 
@@ -94,6 +94,26 @@ def recording_views(
     return views, source, seconds
 
 
+def find_chain(
+    views: list[PosedView],
+    print_scale: float,
+    points_cfg: PointsConfig = PointsConfig(),
+    profile_cfg: ProfileConfig = ProfileConfig(),
+    max_candidates: int = 6,
+) -> tuple[ObjectPoints, ChainProfile]:
+    """(object, profile) of the first thing on the table, best first, that is a chain
+    (`object_candidates`, `chain_profile`); when none is, the first with its reason. A box of
+    clutter beside a thin chain holds more points than the chain: it is passed over, not measured."""
+    candidates = object_candidates(views, points_cfg)[:max_candidates]
+    first = None
+    for obj in candidates:
+        profile = chain_profile(obj, print_scale, profile_cfg)
+        if profile.reason is None:
+            return obj, profile
+        first = first or (obj, profile)
+    return first
+
+
 def observe_chain(
     rec: Recording,
     print_scale: float,
@@ -106,7 +126,6 @@ def observe_chain(
     """The chain's observation in a recording (see the module doc)."""
     views, source, registration_s = recording_views(rec, frame, camera, progress=progress)
     t0 = time.perf_counter()
-    obj = object_points(views, points_cfg)
-    profile = chain_profile(obj, print_scale, profile_cfg)
+    obj, profile = find_chain(views, print_scale, points_cfg, profile_cfg)
     timings = {"registration": round(registration_s, 3), "observation": round(time.perf_counter() - t0, 3)}
     return ChainObservation(obj, profile, source, len(views), timings)

@@ -87,42 +87,108 @@ class ObjectPoints:
     """Merged points before the table and the clutter were removed."""
     reason: str | None = None
     """Why no object was found (then `points_m` is empty)."""
+    view_dirs: np.ndarray | None = None
+    """float64 (N, 3) table frame: per point, the mean unit direction towards the cameras that saw
+    it (which side of a surface it lies on; short where views from both sides merged)."""
+    normals: np.ndarray | None = None
+    """float64 (N, 3) table frame: per point, the mean surface normal of its readings, each taken in
+    its own depth image (so registration error between views does not blur it), facing the camera;
+    zero where no reading had a surface around it."""
 
 
 def rigid(T: np.ndarray, p: np.ndarray) -> np.ndarray:
     return p @ T[:3, :3].T + T[:3, 3]
 
 
-def merged_cloud(views: list[PosedView], cfg: PointsConfig) -> tuple[np.ndarray, np.ndarray | None]:
-    """All views in the world, one point (the mean) per `voxel_m` voxel, in a fixed order."""
-    pts, cols = [], []
+def depth_normals(depth_m: np.ndarray, K: np.ndarray, max_step_m: float = 0.01) -> np.ndarray:
+    """float64 (H, W, 3) camera-frame unit normals facing the camera, from central differences of the
+    back-projected depth image; zero at the border, where a neighbour has no reading, or across a
+    depth step (an occluding edge is no surface)."""
+    h, w = depth_m.shape
+    v, u = np.mgrid[0:h, 0:w]
+    z = depth_m.astype(np.float64)
+    P = np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=-1)
+    normals = np.zeros((h, w, 3))
+    if h < 3 or w < 3:
+        return normals
+    du = P[1:-1, 2:] - P[1:-1, :-2]
+    dv = P[2:, 1:-1] - P[:-2, 1:-1]
+    n = np.cross(du, dv)
+    ok = (
+        (z[1:-1, 2:] > 0)
+        & (z[1:-1, :-2] > 0)
+        & (z[2:, 1:-1] > 0)
+        & (z[:-2, 1:-1] > 0)
+        & (np.abs(du[..., 2]) < 2 * max_step_m)
+        & (np.abs(dv[..., 2]) < 2 * max_step_m)
+    )
+    norm = np.linalg.norm(n, axis=-1)
+    ok &= norm > 0
+    n = np.where(ok[..., None], n / np.maximum(norm, 1e-12)[..., None], 0.0)
+    n *= np.where((n * P[1:-1, 1:-1]).sum(-1, keepdims=True) > 0, -1.0, 1.0)  # towards the camera
+    normals[1:-1, 1:-1] = n
+    return normals
+
+
+def _stride(v: PosedView, cfg: PointsConfig, fine: bool) -> int:
+    """Pixel stride of a view: about `points_per_view` pixels; `fine`: no coarser than a voxel at
+    the view's median depth (a 12 mm link seen from 1.3 m is 5 pixels wide: a coarse stride keeps
+    one or two of them)."""
+    h, w = v.depth_m.shape
+    stride = max(1, int(round(np.sqrt(h * w / cfg.points_per_view))))
+    if fine:
+        valid = v.depth_m[(v.depth_m > 0) & (v.depth_m < cfg.max_depth_m)]
+        if len(valid):
+            stride = min(stride, max(1, int(cfg.voxel_m * float(v.K[0, 0]) / float(np.median(valid)))))
+    return stride
+
+
+def merged_cloud(
+    views: list[PosedView], cfg: PointsConfig, keep=None
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    """(points, colours, view directions, normals): all views in the world, one point (the mean) per
+    `voxel_m` voxel, in a fixed order, with the mean unit direction from its readings to their
+    cameras and the mean of their normals (`depth_normals`). `keep`: a function of (N, 3) world
+    points giving the mask of those to keep; with it, every view is read at the fine stride
+    (`_stride`), since only the region kept costs memory."""
+    pts, cols, dirs, nrms = [], [], [], []
     for v in views:
-        h, w = v.depth_m.shape
-        stride = max(1, int(round(np.sqrt(h * w / cfg.points_per_view))))
+        stride = _stride(v, cfg, fine=keep is not None)
         depth = v.depth_m[::stride, ::stride]
         depth = np.where(depth < cfg.max_depth_m, depth, 0.0)
         K = np.asarray(v.K, np.float64).copy()
         K[:2] /= stride
         K[0, 2] += (1.0 / stride - 1) / 2  # pixel centres of the strided grid
         K[1, 2] += (1.0 / stride - 1) / 2
-        pts.append(rigid(np.asarray(v.T_world_camera, np.float64), backproject(depth, K)))
+        world = rigid(np.asarray(v.T_world_camera, np.float64), backproject(depth, K))
+        mask = np.ones(len(world), bool) if keep is None else keep(world)
+        world = world[mask]
+        normals = depth_normals(depth, K)[depth > 0][mask]
+        nrms.append(normals @ np.asarray(v.T_world_camera, np.float64)[:3, :3].T)
+        to_camera = np.asarray(v.T_world_camera, np.float64)[:3, 3] - world
+        pts.append(world)
+        dirs.append(to_camera / np.maximum(np.linalg.norm(to_camera, axis=1, keepdims=True), 1e-9))
         if v.rgb is not None:
-            cols.append(v.rgb[::stride, ::stride][depth > 0].astype(np.float32) / 255.0)
+            cols.append(v.rgb[::stride, ::stride][depth > 0][mask].astype(np.float32) / 255.0)
     points = np.concatenate(pts) if pts else np.zeros((0, 3))
+    directions = np.concatenate(dirs) if dirs else np.zeros((0, 3))
+    normals = np.concatenate(nrms) if nrms else np.zeros((0, 3))
     colors = np.concatenate(cols) if len(cols) == len(views) and cols else None
     if len(points) == 0:
-        return points, colors
+        return points, colors, directions, normals
     cells = np.floor(points / cfg.voxel_m).astype(np.int64)
     cells -= cells.min(0)
     span = cells.max(0) + 1
     keys = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]  # one int64 per voxel: a 1-D unique
     _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
     mean = np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], 1) / counts[:, None]
+    directions = np.stack([np.bincount(inverse, directions[:, k]) for k in range(3)], 1) / counts[:, None]
+    normals = np.stack([np.bincount(inverse, normals[:, k]) for k in range(3)], 1) / counts[:, None]
     if colors is not None:
         colors = (np.stack([np.bincount(inverse, colors[:, k]) for k in range(3)], 1) / counts[:, None]).astype(
             np.float32
         )
-    return mean, colors
+    return mean, colors, directions, normals
 
 
 def table_plane(points: np.ndarray, camera_centers: np.ndarray, cfg: PointsConfig) -> np.ndarray:
@@ -178,18 +244,29 @@ def _empty(T: np.ndarray, scene: int, reason: str) -> ObjectPoints:
     return ObjectPoints(np.zeros((0, 3)), None, T, scene, reason)
 
 
-def object_points(views: list[PosedView], cfg: PointsConfig = PointsConfig()) -> ObjectPoints:
-    """The object standing on the table in the views' world (see the module doc), in the table frame."""
-    points, colors = merged_cloud(views, cfg)
+def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()) -> list[ObjectPoints]:
+    """Everything standing on the table in the views' world (see the module doc), each in the table
+    frame, best first (more points, nearer where the cameras look); one entry with a `reason` when
+    nothing stands there. Which of them is a chain is for `observe.chain` to say."""
+    points = merged_cloud(views, cfg)[0]
     if len(points) < 100:
-        return _empty(np.eye(4), len(points), f"the depth views hold only {len(points)} points")
+        return [_empty(np.eye(4), len(points), f"the depth views hold only {len(points)} points")]
     plane = table_plane(points, np.stack([v.T_world_camera[:3, 3] for v in views]), cfg)
     T_world_table = table_frame(plane, view_target(views, plane))
-    local = rigid(np.linalg.inv(T_world_table), points)
+    T_table_world = np.linalg.inv(T_world_table)
+
+    def near_target(world: np.ndarray) -> np.ndarray:  # what the object can be: above the table, near the target
+        local = rigid(T_table_world, world)
+        return (local[:, 2] > -cfg.min_height_m) & (np.linalg.norm(local[:, :2], axis=1) < cfg.max_radius_m)
+
+    # the table and the scene from a coarse read; the object from a read as fine as the voxels
+    points, colors, directions, normals = merged_cloud(views, cfg, keep=near_target)
+    local = rigid(T_table_world, points)
     radius = np.linalg.norm(local[:, :2], axis=1)
     above = (local[:, 2] > cfg.min_height_m) & (local[:, 2] < cfg.max_height_m) & (radius < cfg.max_radius_m)
+    nothing = [_empty(T_world_table, len(points), "nothing stands on the table where the cameras look")]
     if above.sum() < cfg.min_cluster_points:
-        return _empty(T_world_table, len(points), "nothing stands on the table where the cameras look")
+        return nothing
     idx = np.flatnonzero(above)
     cells = np.floor(local[idx] / cfg.cluster_cell_m).astype(np.int64)
     cells -= cells.min(0)
@@ -197,15 +274,30 @@ def object_points(views: list[PosedView], cfg: PointsConfig = PointsConfig()) ->
     grid[tuple(cells.T)] = True
     labels, n_labels = ndimage.label(grid, structure=np.ones((3, 3, 3), bool))
     point_label = labels[tuple(cells.T)]
-    best, best_score = None, -1.0
+    R = T_world_table[:3, :3]  # world to table frame: R^T d, as rows d @ R
+    scored = []
     for lab in range(1, n_labels + 1):
         members = idx[point_label == lab]
         if len(members) < cfg.min_cluster_points or local[members, 2].min() > cfg.max_base_height_m:
             continue  # too small, or floating: not standing on the table
         dist = np.linalg.norm(np.median(local[members, :2], axis=0))
-        score = len(members) / (1.0 + dist / 0.1)
-        if score > best_score:
-            best, best_score = members, score
-    if best is None:
-        return _empty(T_world_table, len(points), "nothing stands on the table where the cameras look")
-    return ObjectPoints(local[best], None if colors is None else colors[best], T_world_table, len(points), reason=None)
+        scored.append((-len(members) / (1.0 + dist / 0.1), lab, members))
+    if not scored:
+        return nothing
+    return [
+        ObjectPoints(
+            local[members],
+            None if colors is None else colors[members],
+            T_world_table,
+            len(points),
+            reason=None,
+            view_dirs=directions[members] @ R,
+            normals=normals[members] @ R,
+        )
+        for _, _, members in sorted(scored, key=lambda x: (x[0], x[1]))
+    ]
+
+
+def object_points(views: list[PosedView], cfg: PointsConfig = PointsConfig()) -> ObjectPoints:
+    """The most prominent thing standing on the table (`object_candidates`' first)."""
+    return object_candidates(views, cfg)[0]

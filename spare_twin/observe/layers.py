@@ -1,0 +1,313 @@
+"""The chain measured on its points, layer by layer: link count, link lengths and joint angles.
+
+A SPARE chain's links are plates in layers along the joint axes, link k in layer k (6.4 mm pitch,
+`observe.profile`): across the chain's plane (t) every point says which link it is on. So, in the
+profile frame (s along the plane, t across it, z up, the base axis at s = t = 0):
+
+1. **labels**: each point's layer is its neighbourhood's median t (in the plane, within `radius_m`)
+   over the pitch, rounded. The median is what makes this hold under a structured-light sensor's
+   noise of several millimetres, where a single point's t is often a layer off; where two plates
+   overlap (at a joint) a point may take either label, and lies inside both plates anyway.
+2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
+   2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
+3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
+   at angle phi_k = a_1 + .. + a_k from vertical, a plate 12 mm wide around its centre line) fitted
+   by robust least squares (scipy) with each point held to its own link only: a point outside its
+   plate costs its distance, and samples along each plate (to its rounded ends) cost their distance
+   to the nearest point of that layer beyond a point spacing. Both ends of a joint are held by the
+   two plates meeting there, from opposite sides, so a length is measured, not guessed; the start is
+   read from the layers (each link's points' centroid lies half its length from its joint), so no
+   network is needed and folded chains do not trap the fit.
+
+Deterministic: medians, sorted KD-tree queries and scipy's least squares with fixed starts.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import least_squares
+from scipy.spatial import cKDTree
+
+from spare_twin.config import MAX_MOVING_LINKS
+from spare_twin.observe.points import ObjectPoints
+from spare_twin.observe.profile import ChainProfile
+
+
+@dataclass(frozen=True)
+class LayersConfig:
+    """Measurement settings (metres)."""
+
+    layer_pitch_m: float = 0.0064
+    half_width_m: float = 0.006
+    """Half a link plate's width: the plate is its centre line thickened by this."""
+    min_height_m: float = 0.02
+    """Points below this are the foot and the socket, not links."""
+    radius_m: float = 0.006
+    half_thickness_m: float = 0.003
+    """A plate's face lies this far from its centre across the plane (6 mm plates)."""
+    min_side_cosine: float = 0.3
+    drift_iterations: int = 2
+    """Times the layers' own shear along s is measured and taken out of t (`layer_labels`)."""
+    """A point whose cameras look at it this squarely along t is on a face, not an edge."""
+    """Neighbourhood (in the chain's plane) whose median t labels a point."""
+    min_layer_points: int = 12
+    """A layer with fewer points is noise (flying pixels, a pin head), not a link."""
+    min_layer_fraction: float = 0.03
+    """... or fewer than this share of the links' points."""
+    coverage_tolerance_m: float = 0.0035
+    """A plate sample this near a point of its layer is covered (the points' spacing after the
+    3 mm voxel merge, plus noise)."""
+    max_stray_offset: float = 0.25
+    """A top layer whose points' median plate centre is within this of its own layer is a link."""
+    max_top_inside_parent: float = 0.8
+    """A top layer with this share of its points on its parent's plate is the parent's (`_top_layer_is_parent`)."""
+    cap_reach: float = 0.9
+    """Coverage samples reach this share of a half width past the centre line's ends (into the
+    rounded ends)."""
+    samples_per_link: int = 12
+    max_points: int = 1500
+
+
+@dataclass(frozen=True)
+class LayerMeasurement:
+    """The chain as its points show it."""
+
+    n_links: int | None
+    """Moving links (the highest well-populated layer); None when the points show no link."""
+    lengths_pu: np.ndarray | None
+    """(n + 1,) paper units, base first."""
+    angles_rad: np.ndarray | None
+    """(n,) relative joint angles in the profile frame's sign."""
+    points_per_layer: tuple[int, ...]
+    """How many link points each layer 0, 1, .. holds (for the reader of a wrong count)."""
+    rms_m: float | None = None
+    """RMS distance of the points outside their plates."""
+    cost_m: float | None = None
+    """The fit's robust cost per point (metres): how well one chain explains the layers."""
+
+
+def layer_labels(
+    s_m: np.ndarray, t_m: np.ndarray, z_m: np.ndarray, view_t: np.ndarray | None, cfg: LayersConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """(N,) int64 layer of each point: the median plate centre (in pitches, rounded) of its in-plane
+    neighbourhood on the same side of the chain. A point seen from +t lies on a plate's +t face, half
+    a thickness past its centre (and the other way round), so each reading says its plate's centre;
+    where two plates overlap at a joint, those seen from either side are each one plate's face."""
+    side = np.zeros(len(t_m), np.int64)
+    if view_t is not None:
+        side = np.where(view_t > cfg.min_side_cosine, 1, np.where(view_t < -cfg.min_side_cosine, -1, 0))
+    centre_t = t_m - side * cfg.half_thickness_m
+    centre_t = _align_sides(s_m, z_m, centre_t, side, cfg)
+    # the base link is layer 0 by definition: its column above the socket sets t's zero (the profile's
+    # base axis is the foot's centre, a millimetre or two off the plate's)
+    column = (z_m > cfg.min_height_m) & (z_m < cfg.min_height_m + 0.02) & (np.abs(s_m) < cfg.half_width_m * 2)
+    if column.sum() >= cfg.min_layer_points:
+        centre_t = centre_t - np.median(centre_t[column])
+    sz = np.stack([s_m, z_m], 1)
+    trees = {}
+    for value in (-1, 0, 1):
+        mine = np.flatnonzero(side == value)
+        if len(mine):
+            pool = mine if value != 0 else np.arange(len(t_m))  # an edge-on point asks all its neighbours
+            trees[value] = (mine, pool, cKDTree(sz[pool]).query_ball_point(sz[mine], cfg.radius_m, return_sorted=True))
+    for _ in range(cfg.drift_iterations + 1):
+        median_t = np.empty(len(t_m))
+        for mine, pool, neighbours in trees.values():
+            for i, idx in zip(mine, neighbours):
+                median_t[i] = np.median(centre_t[pool[idx]])
+        labels = np.rint(median_t / cfg.layer_pitch_m).astype(np.int64)
+        # a plane direction a degree off shears t along s by a layer over 37 cm: read the shear
+        # from the layers themselves (each point's offset from its layer's centre) and take it out
+        offset = median_t - labels * cfg.layer_pitch_m
+        fit = np.abs(offset) < 0.35 * cfg.layer_pitch_m
+        if fit.sum() < 20:
+            break
+        A = np.stack([s_m[fit], np.ones(fit.sum())], 1)
+        shear, shift = np.linalg.lstsq(A, offset[fit], rcond=None)[0]
+        centre_t = centre_t - shear * s_m - shift
+    return labels, median_t / cfg.layer_pitch_m
+
+
+def _align_sides(s_m, z_m, centre_t, side, cfg: LayersConfig) -> np.ndarray:
+    """`centre_t` with the two sides' readings moved half their disagreement towards each other. A
+    plate seen from both sides gives one centre from each; where they disagree by more than noise,
+    the views of one side are offset from the other's (a hand-held sweep's registration drifts
+    between the start and the end of its arc) and each plate would split into two layers."""
+    front, back = np.flatnonzero(side > 0), np.flatnonzero(side < 0)
+    if min(len(front), len(back)) < cfg.min_layer_points:
+        return centre_t
+    sz = np.stack([s_m, z_m], 1)
+    back_tree = cKDTree(sz[back])
+    pairs = back_tree.query_ball_point(sz[front], cfg.radius_m, return_sorted=True)
+    gaps = [centre_t[i] - np.median(centre_t[back[idx]]) for i, idx in zip(front, pairs) if len(idx)]
+    if len(gaps) < cfg.min_layer_points:
+        return centre_t
+    gap = float(np.median(gaps))
+    return centre_t - side * gap / 2
+
+
+def count_links(labels: np.ndarray, cfg: LayersConfig) -> tuple[int | None, tuple[int, ...]]:
+    """(n, points per layer 0..): the highest layer with enough points."""
+    counts = np.bincount(np.clip(labels, 0, MAX_MOVING_LINKS + 1), minlength=MAX_MOVING_LINKS + 2)
+    enough = max(cfg.min_layer_points, cfg.min_layer_fraction * len(labels))
+    populated = np.nonzero(counts[1 : MAX_MOVING_LINKS + 1] >= enough)[0]
+    n = int(populated.max()) + 1 if len(populated) else None
+    return n, tuple(int(c) for c in counts)
+
+
+def _joints(lengths_m: np.ndarray, angles_rad: np.ndarray, s0_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(joints (n + 1, 2): joint 1 .. joint n and the last plate's far centre, directions (n, 2))."""
+    phi = np.cumsum(angles_rad)
+    directions = np.stack([np.sin(phi), np.cos(phi)], 1)
+    joint1 = np.array([s0_m, lengths_m[0]])
+    return joint1 + np.concatenate([[[0.0, 0.0]], np.cumsum(directions * lengths_m[1:, None], 0)]), directions
+
+
+def _segments(x: np.ndarray, n: int, cfg: LayersConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, ends) (n + 1, 2) of the plates' centre lines, base first. The base link stands on the
+    axis from the table; the last link's centre line ends half a width before its tip."""
+    s0, lengths, angles = x[0], x[1 : n + 2], x[n + 2 :]
+    joints, directions = _joints(lengths, angles, s0)
+    starts = np.concatenate([[[s0, 0.0]], joints[:-1]])
+    ends = joints.copy()
+    ends[-1] = joints[-2] + directions[-1] * max(lengths[-1] - cfg.half_width_m, 1e-4)
+    return starts, ends
+
+
+def _distance_to_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    ab = b - a
+    u = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
+    return np.linalg.norm(p - (a + u[:, None] * ab), axis=1)
+
+
+def _initial(points: list[np.ndarray], n: int, cfg: LayersConfig) -> np.ndarray:
+    """Start of the fit, read from the layers: the base link's top, then per link its centroid, which
+    lies half the link's length from its joint (for the last link, half of length minus half a width)."""
+    hw = cfg.half_width_m
+    base = points[0]
+    top = float(np.percentile(base[:, 1], 98)) - hw if len(base) else 0.04
+    joint, phi_prev = np.array([0.0, max(top, 0.02)]), 0.0
+    lengths, angles = [joint[1]], []
+    for k in range(1, n + 1):
+        p = points[k]
+        offset = p.mean(0) - joint if len(p) else np.array([0.0, 0.03])
+        phi = float(np.arctan2(offset[0], offset[1]))
+        length = 2 * float(np.linalg.norm(offset)) + (hw if k == n else 0.0)
+        length = max(length, 2 * hw)
+        lengths.append(length)
+        angles.append((phi - phi_prev + np.pi) % (2 * np.pi) - np.pi)
+        joint = joint + length * np.array([np.sin(phi), np.cos(phi)])
+        phi_prev = phi
+    return np.concatenate([[0.0], lengths, angles])
+
+
+def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tuple[np.ndarray, float, float]:
+    """(x = [s0, L0..Ln, a1..an], rms, cost per point) of the chain fitted to each layer's (M_k, 2) in-plane points."""
+    hw, tol = cfg.half_width_m, cfg.coverage_tolerance_m
+    trees = [cKDTree(p) if len(p) else None for p in points_sz_m]
+    total = sum(len(p) for p in points_sz_m)
+    weight = np.sqrt(total / ((n + 1) * cfg.samples_per_link))  # coverage weighs as much as the points
+    u = np.linspace(0.0, 1.0, cfg.samples_per_link)
+
+    def residuals(x):
+        starts, ends = _segments(x, n, cfg)
+        outside, gaps = [], []
+        for k, p in enumerate(points_sz_m):
+            a, b = starts[k], ends[k]
+            if len(p):
+                outside.append(np.maximum(_distance_to_segment(p, a, b) - hw, 0.0))
+            ab = b - a
+            along = ab / max(np.linalg.norm(ab), 1e-9)
+            # the plate's centre line out to its rounded ends (the base's foot end is in the socket)
+            lo = a if k == 0 else a - cfg.cap_reach * hw * along
+            hi = b + cfg.cap_reach * hw * along
+            samples = lo + u[:, None] * (hi - lo)
+            if trees[k] is None:
+                gaps.append(np.zeros(len(u)))
+                continue
+            d, _ = trees[k].query(samples)
+            gaps.append(np.maximum(d - tol, 0.0))
+        return np.concatenate(outside + [weight * np.concatenate(gaps)])
+
+    x0 = _initial(points_sz_m, n, cfg)
+    lo = np.concatenate([[-0.02], np.full(n + 1, 0.005), np.full(n, -np.inf)])
+    hi = np.concatenate([[0.02], np.full(n + 1, 0.5), np.full(n, np.inf)])
+    res = least_squares(residuals, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi), loss="soft_l1", f_scale=0.003)
+    rms = float(np.sqrt(np.mean(res.fun[:total] ** 2))) if total else 0.0
+    return res.x, rms, float(res.cost) / max(total, 1)
+
+
+def _links_ahead(p: np.ndarray) -> np.ndarray:
+    """(3,) +-1 factors that turn t so that the upper links lie at larger t than the base link's
+    foot: for a chain whose sign the profile could not read (upright, no link leaving the base's
+    column)."""
+    low = p[:, 2] < np.percentile(p[:, 2], 15)
+    high = p[:, 2] > np.percentile(p[:, 2], 70)
+    return np.array([1.0, -1.0 if np.median(p[high, 1]) < np.median(p[low, 1]) else 1.0, 1.0])
+
+
+def measure_layers(
+    points_stz_m: np.ndarray,
+    print_scale: float,
+    sign_known: bool = True,
+    cfg: LayersConfig = LayersConfig(),
+    view_dirs: np.ndarray | None = None,
+) -> LayerMeasurement:
+    """Count, lengths and angles of the chain from its (N, 3) points in the profile frame (s, t, z)
+    (`observe.profile.ChainProfile`; `sign_known` its flag) and, where known, the (N, 3) unit
+    directions towards the cameras that saw them, in the same frame."""
+    p = np.asarray(points_stz_m, np.float64)
+    v = np.zeros_like(p) if view_dirs is None else np.asarray(view_dirs, np.float64)
+    keep = p[:, 2] > cfg.min_height_m
+    p, v = p[keep], v[keep]
+    if not sign_known and len(p):
+        flip = _links_ahead(p)
+        p, v = p * flip, v * flip
+    if len(p) > cfg.max_points:
+        pick = np.linspace(0, len(p) - 1, cfg.max_points).astype(np.int64)
+        p, v = p[pick], v[pick]
+    if len(p) < cfg.min_layer_points:
+        return LayerMeasurement(None, None, None, ())
+    labels, centre_layers = layer_labels(p[:, 0], p[:, 1], p[:, 2], None if view_dirs is None else v[:, 1], cfg)
+    n, per_layer = count_links(labels, cfg)
+    if n is None:
+        return LayerMeasurement(None, None, None, per_layer)
+    while True:
+        labels_n = np.clip(labels, 0, n)
+        layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
+        x, rms, cost = fit_layers(layers, n, cfg)
+        if n == 1 or not _top_layer_is_stray(x, layers, centre_layers[labels_n == n], n, cfg):
+            break
+        n -= 1
+    angles = (x[n + 2 :] + np.pi) % (2 * np.pi) - np.pi
+    return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms, cost)
+
+
+def _top_layer_is_stray(
+    x: np.ndarray, layers: list[np.ndarray], centres: np.ndarray, n: int, cfg: LayersConfig
+) -> bool:
+    """Whether the top layer is its parent's points read a layer too high (noise, a pin head), not
+    a link: they lie on the parent's plate, and their plate centres (in layers) sit just past the
+    half-way mark between the two layers, where the tail of the parent's noise ends, not at n. A
+    real link folded back onto a parent of its length lies on its outline too, centred on n."""
+    if float(np.median(centres)) >= n - cfg.max_stray_offset:
+        return False
+    starts, ends = _segments(x, n, cfg)
+    top = layers[n]
+    inside = _distance_to_segment(top, starts[n - 1], ends[n - 1]) <= cfg.half_width_m + cfg.coverage_tolerance_m
+    return bool(inside.mean() >= cfg.max_top_inside_parent)
+
+
+def measure_profile(
+    obj: ObjectPoints, profile: ChainProfile, print_scale: float, cfg: LayersConfig = LayersConfig()
+) -> LayerMeasurement:
+    """`measure_layers` of an observation's points in its profile frame (None-filled where the
+    profile found no chain)."""
+    if profile.reason is not None or len(obj.points_m) == 0:
+        return LayerMeasurement(None, None, None, ())
+    T_profile_table = np.linalg.inv(profile.T_table_profile)
+    points = obj.points_m @ T_profile_table[:3, :3].T + T_profile_table[:3, 3]
+    view_dirs = None if obj.view_dirs is None else obj.view_dirs @ profile.T_table_profile[:3, :3]
+    return measure_layers(points, print_scale, profile.sign_known, cfg, view_dirs)

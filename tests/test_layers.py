@@ -1,0 +1,191 @@
+"""The chain measured layer by layer (spare_twin.observe.layers): on synthetic plates whose answer is
+known exactly, through noise, a sheared plane and two sides out of register; then on a rendered
+chain, and with a box bigger than the chain beside it (observe.chain.find_chain)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from spare_twin.observe.chain import find_chain, observe_chain
+from spare_twin.observe.layers import LayersConfig, measure_layers, measure_profile
+from spare_twin.observe.points import PosedView, object_points
+from spare_twin.recording import Recording
+
+PITCH_M, HALF_WIDTH_M, SCALE = 0.0064, 0.006, 0.08
+
+
+def plates(lengths_pu, angles_rad, rng, noise_m=0.0, spacing_m=0.003):
+    """(points (N, 3) in the profile frame, view directions (N, 3)): both faces of every link plate
+    of a planar chain, sampled on a grid; link k's plate centred at t = k pitches."""
+    lengths = np.asarray(lengths_pu) * SCALE
+    phi = np.cumsum(angles_rad)
+    joint = np.array([0.0, lengths[0]])
+    segments = [(np.array([0.0, 0.02]), joint.copy())]
+    for k, (length, a) in enumerate(zip(lengths[1:], phi)):
+        d = np.array([math.sin(a), math.cos(a)])
+        end = joint + d * (length - (HALF_WIDTH_M if k == len(phi) - 1 else 0.0))
+        segments.append((joint.copy(), end))
+        joint = joint + d * length
+    grid = np.mgrid[-0.25:0.45:spacing_m, 0.0:0.4:spacing_m].reshape(2, -1).T
+    points, views = [], []
+    for k, (a, b) in enumerate(segments):
+        ab = b - a
+        u = np.clip((grid - a) @ ab / (ab @ ab), 0, 1)
+        inside = grid[np.linalg.norm(grid - (a + u[:, None] * ab), axis=1) <= HALF_WIDTH_M]
+        for side in (-1.0, 1.0):
+            t = np.full(len(inside), k * PITCH_M + side * 0.003)
+            points.append(np.stack([inside[:, 0], t, inside[:, 1]], 1))
+            views.append(np.tile([0.0, side, 0.0], (len(inside), 1)))
+    p, v = np.concatenate(points), np.concatenate(views)
+    return p + rng.normal(0.0, noise_m, p.shape), v
+
+
+CHAINS = [
+    ([1.2, 0.6], [0.9]),
+    ([1.0, 0.5, 0.7, 0.4], [0.5, -1.2, 2.0]),
+    ([1.4, 0.3, 0.35, 0.5, 0.5, 0.3], [0.7, -0.9, 0.0, -0.3, 1.2]),
+]
+
+
+@pytest.mark.parametrize("lengths, angles", CHAINS)
+def test_a_clean_chain_is_measured(lengths, angles):
+    """Every link to 4 mm (0.05 paper units; points on a 3 mm grid, as after the voxel merge) and
+    every joint to 10 deg (a 2 mm error at the end of a 2.4 cm link is 5 deg), 5 deg on average."""
+    p, v = plates(lengths, angles, np.random.default_rng(0))
+    m = measure_layers(p, SCALE, view_dirs=v)
+    assert m.n_links == len(angles)
+    assert np.abs(m.lengths_pu - lengths).max() < 0.05
+    err = np.degrees(np.abs(m.angles_rad - angles))
+    assert err.max() < 10.0 and err.mean() < 5.0
+
+
+def test_noise_shear_and_sides_out_of_register():
+    """What a hand-held capture does to the layers: 2 mm of noise, the plane's direction 1.5 deg
+    off (t sheared along s) and the views of one side 4 mm off the other's. The layers still count
+    right; without the sides' alignment they split (the test would fail with `_align_sides` gone)."""
+    lengths, angles = CHAINS[1]
+    p, v = plates(lengths, angles, np.random.default_rng(1), noise_m=0.002)
+    p[:, 1] += math.tan(math.radians(1.5)) * p[:, 0]
+    p[v[:, 1] > 0, 1] += 0.004
+    m = measure_layers(p, SCALE, view_dirs=v)
+    assert m.n_links == 3
+    assert np.abs(m.lengths_pu - lengths).max() < 0.08
+    assert np.degrees(np.abs(m.angles_rad - angles)).mean() < 4.0
+
+
+def test_a_few_stray_points_are_no_link():
+    """A dozen points a layer past the last plate (a pin head, a flying pixel) do not add a link."""
+    lengths, angles = CHAINS[0]
+    p, v = plates(lengths, angles, np.random.default_rng(2))
+    top = p[np.argmax(p[:, 2])]
+    stray = top + np.array([0.0, PITCH_M, 0.0]) + np.random.default_rng(3).normal(0, 0.002, (12, 3))
+    m = measure_layers(np.concatenate([p, stray]), SCALE, view_dirs=np.concatenate([v, np.tile([0, 1.0, 0], (12, 1))]))
+    assert m.n_links == 1
+
+
+def test_no_links_no_count():
+    lengths, angles = CHAINS[0]
+    p, v = plates(lengths, angles, np.random.default_rng(4))
+    base = p[:, 1] < 0.0032  # the base plate's two faces (link 1's near face is at 3.4 mm)
+    assert measure_layers(p[base], SCALE, view_dirs=v[base]).n_links is None
+    assert LayersConfig().layer_pitch_m == PITCH_M
+
+
+@pytest.fixture(scope="module")
+def rig_rec(printed_object, tmp_path_factory):
+    from spare_twin.cli import main
+
+    out = tmp_path_factory.mktemp("layers") / "rig"
+    assert (
+        main(["render", str(printed_object.root), "--out", str(out), "--frames", "3", "--resolution", "network"]) == 0
+    )
+    return Recording.open(out)
+
+
+def test_the_rendered_chain_is_measured(rig_rec):
+    """The 2-link object in the training rig at the network's 96 x 128: count, lengths (the object
+    folder's, paper units) and joint angles (the simulation's, in the profile frame's sign)."""
+    spec = rig_rec.object_config
+    truth_lengths = np.asarray(spec["link_lengths_m"], float)
+    gt = rig_rec.ground_truth()
+    for frame in range(rig_rec.n_frames):
+        seen = observe_chain(rig_rec, SCALE, frame=frame)
+        m = measure_profile(seen.object, seen.profile, SCALE)
+        assert m.n_links == len(truth_lengths) - 1
+        assert np.abs(m.lengths_pu - truth_lengths).max() < 0.06
+        sign = 1.0 if seen.T_world_profile[:3, 0] @ gt["T_world_link"][frame, 0][:3, 0] > 0 else -1.0
+        err = np.abs((m.angles_rad - sign * gt["joint_angles_rad"][frame] + np.pi) % (2 * np.pi) - np.pi)
+        assert np.degrees(err).max() < 6.0
+
+
+def test_a_box_bigger_than_the_chain_is_passed_over(rig_rec):
+    """A 12 x 12 x 10 cm box 22 cm from the chain, seen by every camera, holds more points than the
+    thin chain: the most prominent thing on the table is the box, the chain is still found."""
+    box_lo, box_hi = np.array([0.16, -0.06, 0.0]), np.array([0.28, 0.06, 0.10])
+    views = []
+    for c in rig_rec.cameras:
+        depth = rig_rec.depth_m(c.name, 1).copy()
+        K, T = c.K, rig_rec.T_world_camera(c.name, 1)
+        h, w = depth.shape
+        uu, vv = np.meshgrid(np.arange(w), np.arange(h))
+        rays = np.stack([(uu - K[0, 2]) / K[0, 0], (vv - K[1, 2]) / K[1, 1], np.ones((h, w))], -1) @ T[:3, :3].T
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t0, t1 = (box_lo - T[:3, 3]) / rays, (box_hi - T[:3, 3]) / rays
+        near, far = np.minimum(t0, t1).max(-1), np.maximum(t0, t1).min(-1)
+        hit = (near < far) & (near > 0) & ((depth == 0) | (near < depth))
+        depth[hit] = near[hit]
+        views.append(PosedView(depth.astype(np.float32), K, T))
+    biggest = object_points(views)
+    assert np.median(biggest.points_m[:, 2]) > 0.03 and np.ptp(biggest.points_m[:, 1]) > 0.1  # the box
+    obj, profile = find_chain(views, SCALE)
+    assert profile.reason is None
+    assert measure_profile(obj, profile, SCALE).n_links == len(rig_rec.object_config["link_lengths_m"]) - 1
+
+
+def test_the_measurement_overrules_the_network_where_it_found_a_chain():
+    """`nets.measured`: row 0 measured (4 links), row 1 not (the network's answer stands)."""
+    import torch
+
+    from spare_twin.nets.measured import measurement_slots, overrule
+    from spare_twin.observe.layers import LayerMeasurement
+
+    res = {
+        "pred_n": torch.tensor([2, 3]),
+        "lengths_e2e": torch.full((2, 7), 0.5),
+        "angles": torch.full((2, 6), 0.1),
+        "probabilities": torch.full((2, 6), 1 / 6),
+    }
+    found = LayerMeasurement(4, np.array([1.0, 0.4, 0.5, 0.6, 0.3]), np.array([0.1, 0.2, 0.3, 0.4]), ())
+    rows = [measurement_slots(found), measurement_slots(LayerMeasurement(None, None, None, ()))]
+    batch = {k: torch.as_tensor(np.stack([r[k] for r in rows])) for k in rows[0]}
+    out = overrule(res, batch)
+    assert out["pred_n"].tolist() == [4, 3]
+    assert np.allclose(out["lengths_e2e"][0].numpy(), [1.0, 0.4, 0.5, 0.6, 0.3, 0, 0])
+    assert np.allclose(out["lengths_e2e"][1].numpy(), 0.5)
+    assert np.allclose(out["angles"][0, :4].numpy(), [0.1, 0.2, 0.3, 0.4])
+    assert np.allclose(out["angles"][1].numpy(), 0.1)
+    assert torch.equal(out["probabilities"], res["probabilities"])
+
+
+def test_a_hidden_last_link_is_the_networks():
+    """The network sure of one link more than the layers show, with a few points in that layer: its
+    count, its last link; the measured links stay measured. Without those points, the layers' count."""
+    import torch
+
+    from spare_twin.nets.measured import measurement_slots, overrule
+    from spare_twin.observe.layers import LayerMeasurement
+
+    probabilities = torch.zeros(2, 6)
+    probabilities[:, 4] = 0.9
+    res = {"pred_n": torch.tensor([5, 5]), "lengths_e2e": torch.full((2, 7), 0.5), "probabilities": probabilities}
+    res["lengths_e2e"][:, 6] = 0.0
+    seen = LayerMeasurement(4, np.array([1.0, 0.4, 0.5, 0.6, 0.3]), np.zeros(4), (200, 90, 80, 70, 60, 5, 0, 0))
+    unseen = LayerMeasurement(4, np.array([1.0, 0.4, 0.5, 0.6, 0.3]), np.zeros(4), (200, 90, 80, 70, 60, 0, 0, 0))
+    rows = [measurement_slots(seen), measurement_slots(unseen)]
+    out = overrule(res, {k: torch.as_tensor(np.stack([r[k] for r in rows])) for k in rows[0]})
+    assert out["pred_n"].tolist() == [5, 4]
+    assert np.allclose(out["lengths_e2e"][0].numpy(), [1.0, 0.4, 0.5, 0.6, 0.3, 0.5, 0.0])
+    assert np.allclose(out["lengths_e2e"][1].numpy(), [1.0, 0.4, 0.5, 0.6, 0.3, 0.0, 0.0])
