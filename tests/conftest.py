@@ -133,3 +133,16 @@ def tiny_models(tmp_path_factory):
         train(resolve(preset, cfg), data, root / name, progress=False)
         models[name] = root / name / "model.pt"
     return models
+
+
+@pytest.fixture(scope="session")
+def rig_rec(printed_object, tmp_path_factory):
+    """The 2-link object in the training rig, 3 frames at the network's resolution (96 x 128)."""
+    from spare_twin.cli import main
+    from spare_twin.recording import Recording
+
+    out = tmp_path_factory.mktemp("rig") / "rig"
+    assert (
+        main(["render", str(printed_object.root), "--out", str(out), "--frames", "3", "--resolution", "network"]) == 0
+    )
+    return Recording.open(out)

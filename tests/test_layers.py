@@ -12,7 +12,6 @@ import pytest
 from spare_twin.observe.chain import find_chain, observe_chain
 from spare_twin.observe.layers import LayersConfig, measure_layers, measure_profile
 from spare_twin.observe.points import PosedView, object_points
-from spare_twin.recording import Recording
 
 PITCH_M, HALF_WIDTH_M, SCALE = 0.0064, 0.006, 0.08
 
@@ -92,17 +91,6 @@ def test_no_links_no_count():
     base = p[:, 1] < 0.0032  # the base plate's two faces (link 1's near face is at 3.4 mm)
     assert measure_layers(p[base], SCALE, view_dirs=v[base]).n_links is None
     assert LayersConfig().layer_pitch_m == PITCH_M
-
-
-@pytest.fixture(scope="module")
-def rig_rec(printed_object, tmp_path_factory):
-    from spare_twin.cli import main
-
-    out = tmp_path_factory.mktemp("layers") / "rig"
-    assert (
-        main(["render", str(printed_object.root), "--out", str(out), "--frames", "3", "--resolution", "network"]) == 0
-    )
-    return Recording.open(out)
 
 
 def test_the_rendered_chain_is_measured(rig_rec):

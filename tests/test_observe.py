@@ -16,18 +16,6 @@ from spare_twin.recording import Recording
 PRINT_SCALE = 0.08
 
 
-@pytest.fixture(scope="module")
-def rig_rec(printed_object, tmp_path_factory):
-    """The 2-link object in the training rig, 3 frames at the network's resolution."""
-    from spare_twin.cli import main
-
-    out = tmp_path_factory.mktemp("observe") / "rig"
-    assert (
-        main(["render", str(printed_object.root), "--out", str(out), "--frames", "3", "--resolution", "network"]) == 0
-    )
-    return Recording.open(out)
-
-
 def _views(rec: Recording, frame: int, G: np.ndarray | None = None) -> list[PosedView]:
     G = np.eye(4) if G is None else G
     return [PosedView(rec.depth_m(c.name, frame), c.K, G @ rec.T_world_camera(c.name, frame)) for c in rec.cameras]
