@@ -84,8 +84,6 @@ class LayerMeasurement:
     """How many link points each layer 0, 1, .. holds (for the reader of a wrong count)."""
     rms_m: float | None = None
     """RMS distance of the points outside their plates."""
-    cost_m: float | None = None
-    """The fit's robust cost per point (metres): how well one chain explains the layers."""
 
 
 def layer_labels(
@@ -203,8 +201,8 @@ def _initial(points: list[np.ndarray], n: int, cfg: LayersConfig) -> np.ndarray:
     return np.concatenate([[0.0], lengths, angles])
 
 
-def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tuple[np.ndarray, float, float]:
-    """(x = [s0, L0..Ln, a1..an], rms, cost per point) of the chain fitted to each layer's (M_k, 2) in-plane points."""
+def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tuple[np.ndarray, float]:
+    """(x = [s0, L0..Ln, a1..an], rms) of the chain fitted to each layer's (M_k, 2) in-plane points."""
     hw, tol = cfg.half_width_m, cfg.coverage_tolerance_m
     trees = [cKDTree(p) if len(p) else None for p in points_sz_m]
     total = sum(len(p) for p in points_sz_m)
@@ -236,7 +234,7 @@ def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tupl
     hi = np.concatenate([[0.02], np.full(n + 1, 0.5), np.full(n, np.inf)])
     res = least_squares(residuals, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi), loss="soft_l1", f_scale=0.003)
     rms = float(np.sqrt(np.mean(res.fun[:total] ** 2))) if total else 0.0
-    return res.x, rms, float(res.cost) / max(total, 1)
+    return res.x, rms
 
 
 def _links_ahead(p: np.ndarray) -> np.ndarray:
@@ -277,12 +275,12 @@ def measure_layers(
     while True:
         labels_n = np.clip(labels, 0, n)
         layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
-        x, rms, cost = fit_layers(layers, n, cfg)
+        x, rms = fit_layers(layers, n, cfg)
         if n == 1 or not _top_layer_is_stray(x, layers, centre_layers[labels_n == n], n, cfg):
             break
         n -= 1
     angles = (x[n + 2 :] + np.pi) % (2 * np.pi) - np.pi
-    return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms, cost)
+    return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms)
 
 
 def _top_layer_is_stray(

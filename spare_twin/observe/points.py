@@ -144,13 +144,13 @@ def _stride(v: PosedView, cfg: PointsConfig, fine: bool) -> int:
 
 
 def merged_cloud(
-    views: list[PosedView], cfg: PointsConfig, keep=None
-) -> tuple[np.ndarray, np.ndarray | None, np.ndarray, np.ndarray]:
+    views: list[PosedView], cfg: PointsConfig, keep=None, surfaces: bool = True
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
     """(points, colours, view directions, normals): all views in the world, one point (the mean) per
     `voxel_m` voxel, in a fixed order, with the mean unit direction from its readings to their
-    cameras and the mean of their normals (`depth_normals`). `keep`: a function of (N, 3) world
-    points giving the mask of those to keep; with it, every view is read at the fine stride
-    (`_stride`), since only the region kept costs memory."""
+    cameras and the mean of their normals (`depth_normals`; both None unless `surfaces`). `keep`: a
+    function of (N, 3) world points giving the mask of those to keep; with it, every view is read at
+    the fine stride (`_stride`), since only the region kept costs memory."""
     pts, cols, dirs, nrms = [], [], [], []
     for v in views:
         stride = _stride(v, cfg, fine=keep is not None)
@@ -163,16 +163,17 @@ def merged_cloud(
         world = rigid(np.asarray(v.T_world_camera, np.float64), backproject(depth, K))
         mask = np.ones(len(world), bool) if keep is None else keep(world)
         world = world[mask]
-        normals = depth_normals(depth, K)[depth > 0][mask]
-        nrms.append(normals @ np.asarray(v.T_world_camera, np.float64)[:3, :3].T)
-        to_camera = np.asarray(v.T_world_camera, np.float64)[:3, 3] - world
         pts.append(world)
-        dirs.append(to_camera / np.maximum(np.linalg.norm(to_camera, axis=1, keepdims=True), 1e-9))
+        if surfaces:
+            normals = depth_normals(depth, K)[depth > 0][mask]
+            nrms.append(normals @ np.asarray(v.T_world_camera, np.float64)[:3, :3].T)
+            to_camera = np.asarray(v.T_world_camera, np.float64)[:3, 3] - world
+            dirs.append(to_camera / np.maximum(np.linalg.norm(to_camera, axis=1, keepdims=True), 1e-9))
         if v.rgb is not None:
             cols.append(v.rgb[::stride, ::stride][depth > 0][mask].astype(np.float32) / 255.0)
     points = np.concatenate(pts) if pts else np.zeros((0, 3))
-    directions = np.concatenate(dirs) if dirs else np.zeros((0, 3))
-    normals = np.concatenate(nrms) if nrms else np.zeros((0, 3))
+    directions = (np.concatenate(dirs) if dirs else np.zeros((0, 3))) if surfaces else None
+    normals = (np.concatenate(nrms) if nrms else np.zeros((0, 3))) if surfaces else None
     colors = np.concatenate(cols) if len(cols) == len(views) and cols else None
     if len(points) == 0:
         return points, colors, directions, normals
@@ -181,14 +182,19 @@ def merged_cloud(
     span = cells.max(0) + 1
     keys = (cells[:, 0] * span[1] + cells[:, 1]) * span[2] + cells[:, 2]  # one int64 per voxel: a 1-D unique
     _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    mean = np.stack([np.bincount(inverse, points[:, k]) for k in range(3)], 1) / counts[:, None]
-    directions = np.stack([np.bincount(inverse, directions[:, k]) for k in range(3)], 1) / counts[:, None]
-    normals = np.stack([np.bincount(inverse, normals[:, k]) for k in range(3)], 1) / counts[:, None]
-    if colors is not None:
-        colors = (np.stack([np.bincount(inverse, colors[:, k]) for k in range(3)], 1) / counts[:, None]).astype(
-            np.float32
-        )
-    return mean, colors, directions, normals
+
+    def voxel_mean(values: np.ndarray | None) -> np.ndarray | None:
+        if values is None:
+            return None
+        return np.stack([np.bincount(inverse, values[:, k]) for k in range(values.shape[1])], 1) / counts[:, None]
+
+    colors = voxel_mean(colors)
+    return (
+        voxel_mean(points),
+        None if colors is None else colors.astype(np.float32),
+        voxel_mean(directions),
+        voxel_mean(normals),
+    )
 
 
 def table_plane(points: np.ndarray, camera_centers: np.ndarray, cfg: PointsConfig) -> np.ndarray:
@@ -248,7 +254,7 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
     """Everything standing on the table in the views' world (see the module doc), each in the table
     frame, best first (more points, nearer where the cameras look); one entry with a `reason` when
     nothing stands there. Which of them is a chain is for `observe.chain` to say."""
-    points = merged_cloud(views, cfg)[0]
+    points = merged_cloud(views, cfg, surfaces=False)[0]
     if len(points) < 100:
         return [_empty(np.eye(4), len(points), f"the depth views hold only {len(points)} points")]
     plane = table_plane(points, np.stack([v.T_world_camera[:3, 3] for v in views]), cfg)
