@@ -191,3 +191,45 @@ def test_register_is_byte_reproducible_across_processes(handheld, tmp_path):
         poses.append(np.load(out))
     assert poses[0].shape == (12, 4, 4)
     assert np.array_equal(poses[0], poses[1]) and poses[0].tobytes() == poses[1].tobytes()
+
+
+def _turn_z(deg: float, step_m: float = 0.05) -> np.ndarray:
+    """A camera motion of a sweep round the object: turned `deg` about z, moved sideways."""
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    T = np.eye(4)
+    T[:2, :2] = [[c, -s], [s, c]]
+    T[0, 3] = step_m
+    return T
+
+
+class _IcpSettlesOnTheGuess:
+    """A stand-in registrar whose ICP converges to what it is started from (a well-posed pair), with
+    the fitness of the first, table-dominated result: only the path's smoothness can decide."""
+
+    def icp(self, s, t, init):
+        return np.array(init), 0.9, 0.001, np.eye(6)
+
+
+def test_a_wrong_first_step_is_restarted_from_the_smooth_path():
+    """`_smooth_start`: a sparse sweep (20 deg between frames) whose first two pairs ICP settled 30 deg
+    off (the table matched, the object turned) is brought back onto the path the later pairs follow;
+    a pair off the path whose next pair is off too (12020 on the bench) is left alone, and with
+    `max_motion_jump_deg` 0 nothing is changed."""
+    from spare_twin.capture.registration import Edge, RegistrationConfig, _smooth_start
+
+    truth = [_turn_z(20.0) for _ in range(8)]
+    got = [_turn_z(50.0), _turn_z(-10.0)] + truth[2:]
+    edges = [Edge(a + 1, a, M, 0.93, 0.001, "guess") for a, M in enumerate(got)]
+    chain = _smooth_start(_IcpSettlesOnTheGuess(), edges, RegistrationConfig())
+    assert [e.init for e in edges] == ["smoothed"] * 2 + ["guess"] * 6
+    assert all(np.allclose(e.T_target_source, T) for e, T in zip(edges, truth))
+    assert np.allclose(chain[-1], np.linalg.multi_dot(truth))
+
+    lone = truth[:5] + [_turn_z(35.0), _turn_z(5.0)] + truth[7:]  # two jumps in a row: whom to trust?
+    edges = [Edge(a + 1, a, M, 0.93, 0.001, "guess") for a, M in enumerate(lone)]
+    _smooth_start(_IcpSettlesOnTheGuess(), edges, RegistrationConfig())
+    assert [e.init for e in edges][:5] == ["guess"] * 5
+
+    edges = [Edge(a + 1, a, M, 0.93, 0.001, "guess") for a, M in enumerate(got)]
+    _smooth_start(_IcpSettlesOnTheGuess(), edges, RegistrationConfig(max_motion_jump_deg=0.0))
+    assert all(e.init == "guess" for e in edges)

@@ -75,6 +75,21 @@ def test_noise_shear_and_sides_out_of_register():
     assert np.degrees(np.abs(m.angles_rad - angles)).mean() < 4.0
 
 
+def test_a_plane_direction_degrees_off():
+    """The face normals of a noisy Kinect capture can put the plane 4-5 deg off: across a chain
+    reaching 12 cm sideways t then drifts by more than a layer. The comb's coherence finds the
+    shear; reading each point's offset from its rounded layer did not (it took a layer's drift for
+    none, and split the long links into two)."""
+    lengths, angles = [1.0, 0.6, 0.6, 0.4], [1.4, 0.2, -0.3]
+    p, v = plates(lengths, angles, np.random.default_rng(5), noise_m=0.002)
+    assert p[:, 0].max() > 0.12
+    p[:, 1] += math.tan(math.radians(5.0)) * p[:, 0]
+    m = measure_layers(p, SCALE, view_dirs=v)
+    assert m.n_links == 3
+    assert np.abs(m.lengths_pu - lengths).max() < 0.08
+    assert np.degrees(np.abs(m.angles_rad - angles)).mean() < 5.0
+
+
 def test_a_few_stray_points_are_no_link():
     """A dozen points a layer past the last plate (a pin head, a flying pixel) do not add a link."""
     lengths, angles = CHAINS[0]

@@ -45,28 +45,35 @@ class LayersConfig:
     min_height_m: float = 0.02
     """Points below this are the foot and the socket, not links."""
     radius_m: float = 0.006
+    """Neighbourhood (in the chain's plane) whose median t labels a point."""
     half_thickness_m: float = 0.003
     """A plate's face lies this far from its centre across the plane (6 mm plates)."""
     min_side_cosine: float = 0.3
-    drift_iterations: int = 2
-    """Times the layers' own shear along s is measured and taken out of t (`layer_labels`)."""
     """A point whose cameras look at it this squarely along t is on a face, not an edge."""
-    """Neighbourhood (in the chain's plane) whose median t labels a point."""
+    max_shear: float = 0.15
+    """Largest shear of t along s (tan of the plane direction's error, about 8.5 deg) searched for."""
+    shear_steps: int = 301
+    shear_prior: float = 0.3
+    """Coherence a shear must gain per unit of shear to be preferred to none (`_layer_shear`)."""
     min_layer_points: int = 12
     """A layer with fewer points is noise (flying pixels, a pin head), not a link."""
     min_layer_fraction: float = 0.03
     """... or fewer than this share of the links' points."""
-    coverage_tolerance_m: float = 0.0035
-    """A plate sample this near a point of its layer is covered (the points' spacing after the
-    3 mm voxel merge, plus noise)."""
+    coverage_tolerance_m: float = 0.0025
+    """A plate sample this near a point of its layer is covered (about the points' spacing after the
+    3 mm voxel merge). Nothing else stops a free end (the base's top, the last link's tip) from
+    running on past its points, since a longer plate leaves fewer points outside: at 3.5 mm the ends
+    came out 1.5-3 mm long on hand-held captures."""
     max_stray_offset: float = 0.25
     """A top layer whose points' median plate centre is within this of its own layer is a link."""
     max_top_inside_parent: float = 0.8
     """A top layer with this share of its points on its parent's plate is the parent's (`_top_layer_is_parent`)."""
-    cap_reach: float = 0.9
-    """Coverage samples reach this share of a half width past the centre line's ends (into the
-    rounded ends)."""
+    cap_reach: float = 1.0
+    """Coverage samples reach this share of a half width past the centre line's ends (to the
+    rounded ends' rims)."""
     samples_per_link: int = 12
+    directions: int = 72
+    """Link directions tried by the fit's second start (`_initial_sequential`)."""
     max_points: int = 1500
 
 
@@ -98,34 +105,40 @@ def layer_labels(
         side = np.where(view_t > cfg.min_side_cosine, 1, np.where(view_t < -cfg.min_side_cosine, -1, 0))
     centre_t = t_m - side * cfg.half_thickness_m
     centre_t = _align_sides(s_m, z_m, centre_t, side, cfg)
-    # the base link is layer 0 by definition: its column above the socket sets t's zero (the profile's
-    # base axis is the foot's centre, a millimetre or two off the plate's)
-    column = (z_m > cfg.min_height_m) & (z_m < cfg.min_height_m + 0.02) & (np.abs(s_m) < cfg.half_width_m * 2)
-    if column.sum() >= cfg.min_layer_points:
-        centre_t = centre_t - np.median(centre_t[column])
     sz = np.stack([s_m, z_m], 1)
-    trees = {}
+    median_t = np.empty(len(t_m))
     for value in (-1, 0, 1):
         mine = np.flatnonzero(side == value)
         if len(mine):
             pool = mine if value != 0 else np.arange(len(t_m))  # an edge-on point asks all its neighbours
-            trees[value] = (mine, pool, cKDTree(sz[pool]).query_ball_point(sz[mine], cfg.radius_m, return_sorted=True))
-    for _ in range(cfg.drift_iterations + 1):
-        median_t = np.empty(len(t_m))
-        for mine, pool, neighbours in trees.values():
+            neighbours = cKDTree(sz[pool]).query_ball_point(sz[mine], cfg.radius_m, return_sorted=True)
             for i, idx in zip(mine, neighbours):
                 median_t[i] = np.median(centre_t[pool[idx]])
-        labels = np.rint(median_t / cfg.layer_pitch_m).astype(np.int64)
-        # a plane direction a degree off shears t along s by a layer over 37 cm: read the shear
-        # from the layers themselves (each point's offset from its layer's centre) and take it out
-        offset = median_t - labels * cfg.layer_pitch_m
-        fit = np.abs(offset) < 0.35 * cfg.layer_pitch_m
-        if fit.sum() < 20:
-            break
-        A = np.stack([s_m[fit], np.ones(fit.sum())], 1)
-        shear, shift = np.linalg.lstsq(A, offset[fit], rcond=None)[0]
-        centre_t = centre_t - shear * s_m - shift
-    return labels, median_t / cfg.layer_pitch_m
+    median_t = median_t - _layer_shear(s_m, median_t, cfg) * s_m
+    # the base link is layer 0 by definition: its column above the socket sets t's zero (the profile's
+    # base axis is the foot's centre, a millimetre or two off the plate's); the layers' common phase
+    # says where within a pitch the zero lies, the column which layer it is
+    wave = 2 * np.pi / cfg.layer_pitch_m
+    zero = float(np.angle(np.sum(np.exp(1j * wave * median_t)))) / wave
+    column = (z_m > cfg.min_height_m) & (z_m < cfg.min_height_m + 0.02) & (np.abs(s_m) < cfg.half_width_m * 2)
+    if column.sum() >= cfg.min_layer_points:
+        zero += cfg.layer_pitch_m * np.rint((np.median(median_t[column]) - zero) / cfg.layer_pitch_m)
+    centre_layers = (median_t - zero) / cfg.layer_pitch_m
+    return np.rint(centre_layers).astype(np.int64), centre_layers
+
+
+def _layer_shear(s_m: np.ndarray, t_m: np.ndarray, cfg: LayersConfig) -> float:
+    """The shear g (t per s) that stacks the points' plate centres best onto a 6.4 mm comb: the
+    argmax of the coherence |mean(exp(2 pi i (t - g s) / pitch))| less `shear_prior` * |g|. A plane
+    direction a few degrees off (the face normals of a noisy Kinect capture) shears t along s by a
+    layer or more across the chain; the comb's coherence sees the whole shear at once, where fitting
+    each point's offset from its rounded layer cannot tell a shear of one layer from none. The prior
+    keeps an upright chain (little extent in s, so no say about g) unsheared."""
+    wave = 2 * np.pi / cfg.layer_pitch_m
+    shears = np.linspace(-cfg.max_shear, cfg.max_shear, cfg.shear_steps)
+    phases = np.exp(1j * wave * t_m)
+    coherence = np.abs(np.exp(-1j * wave * np.outer(shears, s_m)) @ phases) / max(len(t_m), 1)
+    return float(shears[int(np.argmax(coherence - cfg.shear_prior * np.abs(shears)))])
 
 
 def _align_sides(s_m, z_m, centre_t, side, cfg: LayersConfig) -> np.ndarray:
@@ -201,6 +214,37 @@ def _initial(points: list[np.ndarray], n: int, cfg: LayersConfig) -> np.ndarray:
     return np.concatenate([[0.0], lengths, angles])
 
 
+def _initial_sequential(points: list[np.ndarray], n: int, cfg: LayersConfig) -> np.ndarray:
+    """A second start, link by link from the base: each link's direction is the one of `directions`
+    whose plate from its joint holds the layer's points best, its length their reach along it. Where
+    the first start's centroid misleads (a link's points bunched at one end, a fold that hides half a
+    link), this one follows the points' extent instead."""
+    hw = cfg.half_width_m
+    base = points[0]
+    joint = np.array([0.0, max(float(np.percentile(base[:, 1], 98)) - hw if len(base) else 0.04, 0.02)])
+    phis = np.linspace(-np.pi, np.pi, cfg.directions, endpoint=False)
+    axes = np.stack([np.sin(phis), np.cos(phis)], 1)
+    lengths, angles, phi_prev = [joint[1]], [], 0.0
+    for k in range(1, n + 1):
+        rel = points[k] - joint
+        if len(rel) == 0:
+            phi, reach = phi_prev, 2 * hw
+        else:
+            along = rel @ axes.T  # (M, directions)
+            across = np.abs(rel @ np.stack([axes[:, 1], -axes[:, 0]], 0))
+            reach_all = np.maximum(np.percentile(along, 98, axis=0), 2 * hw)
+            outside = np.maximum(np.hypot(along - np.clip(along, 0.0, reach_all), across) - hw, 0.0)
+            best = int(np.argmin(np.sum(outside**2, axis=0)))
+            phi, reach = float(phis[best]), float(reach_all[best])
+        # the points reach a middle link's rounded end, a half width past its far joint; the last's tip
+        length = reach if k == n else max(reach - hw, 2 * hw)
+        lengths.append(length)
+        angles.append((phi - phi_prev + np.pi) % (2 * np.pi) - np.pi)
+        joint = joint + (length - (hw if k == n else 0.0)) * np.array([np.sin(phi), np.cos(phi)])
+        phi_prev = phi
+    return np.concatenate([[0.0], lengths, angles])
+
+
 def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tuple[np.ndarray, float]:
     """(x = [s0, L0..Ln, a1..an], rms) of the chain fitted to each layer's (M_k, 2) in-plane points."""
     hw, tol = cfg.half_width_m, cfg.coverage_tolerance_m
@@ -229,10 +273,13 @@ def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tupl
             gaps.append(np.maximum(d - tol, 0.0))
         return np.concatenate(outside + [weight * np.concatenate(gaps)])
 
-    x0 = _initial(points_sz_m, n, cfg)
     lo = np.concatenate([[-0.02], np.full(n + 1, 0.005), np.full(n, -np.inf)])
     hi = np.concatenate([[0.02], np.full(n + 1, 0.5), np.full(n, np.inf)])
-    res = least_squares(residuals, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi), loss="soft_l1", f_scale=0.003)
+    fits = [
+        least_squares(residuals, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi), loss="soft_l1", f_scale=0.003)
+        for x0 in (_initial(points_sz_m, n, cfg), _initial_sequential(points_sz_m, n, cfg))
+    ]
+    res = min(fits, key=lambda r: r.cost)  # the first on a tie
     rms = float(np.sqrt(np.mean(res.fun[:total] ** 2))) if total else 0.0
     return res.x, rms
 
