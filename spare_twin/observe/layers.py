@@ -107,13 +107,24 @@ def layer_labels(
     centre_t = _align_sides(s_m, z_m, centre_t, side, cfg)
     sz = np.stack([s_m, z_m], 1)
     median_t = np.empty(len(t_m))
+    faces = np.flatnonzero(side != 0)
+    everyone = np.arange(len(t_m))
     for value in (-1, 0, 1):
         mine = np.flatnonzero(side == value)
-        if len(mine):
-            pool = mine if value != 0 else np.arange(len(t_m))  # an edge-on point asks all its neighbours
-            neighbours = cKDTree(sz[pool]).query_ball_point(sz[mine], cfg.radius_m, return_sorted=True)
-            for i, idx in zip(mine, neighbours):
+        if len(mine) == 0:
+            continue
+        # an edge-on point's t lies anywhere across its plate: it asks the faces' points near it (on an
+        # upright link the edge points outnumber them and, all asked, read a layer low), else everyone
+        pools = [mine] if value != 0 else [faces, everyone]
+        todo = np.arange(len(mine))
+        for pool in pools:
+            if len(todo) == 0 or len(pool) == 0:
+                continue
+            neighbours = cKDTree(sz[pool]).query_ball_point(sz[mine[todo]], cfg.radius_m, return_sorted=True)
+            found = np.array([len(idx) > 0 for idx in neighbours], bool)
+            for i, idx in zip(mine[todo][found], [idx for idx in neighbours if len(idx)]):
                 median_t[i] = np.median(centre_t[pool[idx]])
+            todo = todo[~found]
     median_t = median_t - _layer_shear(s_m, median_t, cfg) * s_m
     # the base link is layer 0 by definition: its column above the socket sets t's zero (the profile's
     # base axis is the foot's centre, a millimetre or two off the plate's); the layers' common phase
@@ -322,6 +333,7 @@ def measure_layers(
     while True:
         labels_n = np.clip(labels, 0, n)
         layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
+        # the base link stands on the axis: layer-0 points off its column are another link's, misread
         x, rms = fit_layers(layers, n, cfg)
         if n == 1 or not _top_layer_is_stray(x, layers, centre_layers[labels_n == n], n, cfg):
             break
