@@ -4,10 +4,11 @@ A SPARE chain's links are plates in layers along the joint axes, link k in layer
 `observe.profile`): across the chain's plane (t) every point says which link it is on. So, in the
 profile frame (s along the plane, t across it, z up, the base axis at s = t = 0):
 
-1. **labels**: each point's layer is its neighbourhood's median t (in the plane, within `radius_m`)
-   over the pitch, rounded. The median is what makes this hold under a structured-light sensor's
-   noise of several millimetres, where a single point's t is often a layer off; where two plates
-   overlap (at a joint) a point may take either label, and lies inside both plates anyway.
+1. **labels**: each point's layer is its neighbourhood's median plate centre (in the plane, within
+   `radius_m`) over the pitch, rounded, once the shear of t along s is taken out (`_layer_shear`).
+   The median is what makes this hold under a structured-light sensor's noise of several
+   millimetres, where a single point's t is often a layer off; where two plates overlap (at a joint)
+   a point may take either label, and lies inside both plates anyway.
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
    2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
 3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
@@ -15,9 +16,11 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    by robust least squares (scipy) with each point held to its own link only: a point outside its
    plate costs its distance, and samples along each plate (to its rounded ends) cost their distance
    to the nearest point of that layer beyond a point spacing. Both ends of a joint are held by the
-   two plates meeting there, from opposite sides, so a length is measured, not guessed; the start is
-   read from the layers (each link's points' centroid lies half its length from its joint), so no
-   network is needed and folded chains do not trap the fit.
+   two plates meeting there, from opposite sides, so a length is measured, not guessed. Two starts,
+   both read from the layers, the lower cost kept: each link's points' centroid lies half its length
+   from its joint (`_initial`), and link by link from the base, each turned to where its plate holds
+   its layer's points best (`_initial_sequential`). No network is needed, and folded chains do not
+   trap the fit.
 
 Deterministic: medians, sorted KD-tree queries and scipy's least squares with fixed starts.
 """
@@ -107,24 +110,13 @@ def layer_labels(
     centre_t = _align_sides(s_m, z_m, centre_t, side, cfg)
     sz = np.stack([s_m, z_m], 1)
     median_t = np.empty(len(t_m))
-    faces = np.flatnonzero(side != 0)
-    everyone = np.arange(len(t_m))
     for value in (-1, 0, 1):
         mine = np.flatnonzero(side == value)
-        if len(mine) == 0:
-            continue
-        # an edge-on point's t lies anywhere across its plate: it asks the faces' points near it (on an
-        # upright link the edge points outnumber them and, all asked, read a layer low), else everyone
-        pools = [mine] if value != 0 else [faces, everyone]
-        todo = np.arange(len(mine))
-        for pool in pools:
-            if len(todo) == 0 or len(pool) == 0:
-                continue
-            neighbours = cKDTree(sz[pool]).query_ball_point(sz[mine[todo]], cfg.radius_m, return_sorted=True)
-            found = np.array([len(idx) > 0 for idx in neighbours], bool)
-            for i, idx in zip(mine[todo][found], [idx for idx in neighbours if len(idx)]):
+        if len(mine):
+            pool = mine if value != 0 else np.arange(len(t_m))  # an edge-on point asks all its neighbours
+            neighbours = cKDTree(sz[pool]).query_ball_point(sz[mine], cfg.radius_m, return_sorted=True)
+            for i, idx in zip(mine, neighbours):
                 median_t[i] = np.median(centre_t[pool[idx]])
-            todo = todo[~found]
     median_t = median_t - _layer_shear(s_m, median_t, cfg) * s_m
     # the base link is layer 0 by definition: its column above the socket sets t's zero (the profile's
     # base axis is the foot's centre, a millimetre or two off the plate's); the layers' common phase
