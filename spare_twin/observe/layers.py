@@ -325,7 +325,6 @@ def measure_layers(
     while True:
         labels_n = np.clip(labels, 0, n)
         layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
-        # the base link stands on the axis: layer-0 points off its column are another link's, misread
         x, rms = fit_layers(layers, n, cfg)
         if n == 1 or not _top_layer_is_stray(x, layers, centre_layers[labels_n == n], n, cfg):
             break
