@@ -790,8 +790,6 @@ def register_frames(
         if init_poses.shape != (n, 4, 4):
             raise SpareTwinError(f"registration: init poses have shape {init_poses.shape}, expected ({n}, 4, 4)")
         chain = [_inv(init_poses[0]) @ P for P in init_poses]
-    else:
-        chain = [np.eye(4)]
     edges: list[Edge] = []
     motion = np.eye(4)
     for a in range(n - 1):
@@ -809,10 +807,8 @@ def register_frames(
                 )
             continue
         edges.append(e)
-        if init_poses is None:
-            motion = e.T_target_source
-            chain.append(chain[a] @ motion)
-    if init_poses is None:
+        motion = e.T_target_source
+    if init_poses is None:  # the chain of the neighbours' motions, their start smoothed
         chain = _smooth_start(R, edges, cfg)
     loops = _loop_pairs(clouds, chain, cfg)
     bar.total += len(loops)

@@ -196,13 +196,17 @@ def _distance_to_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndar
     return np.linalg.norm(p - (a + u[:, None] * ab), axis=1)
 
 
+def _first_joint(base: np.ndarray, cfg: LayersConfig) -> np.ndarray:
+    """(2,) joint 1 where both starts put it: half a width below the top of the base's (M, 2) points."""
+    top = float(np.percentile(base[:, 1], 98)) - cfg.half_width_m if len(base) else 0.04
+    return np.array([0.0, max(top, 0.02)])
+
+
 def _initial(points: list[np.ndarray], n: int, cfg: LayersConfig) -> np.ndarray:
     """Start of the fit, read from the layers: the base link's top, then per link its centroid, which
     lies half the link's length from its joint (for the last link, half of length minus half a width)."""
     hw = cfg.half_width_m
-    base = points[0]
-    top = float(np.percentile(base[:, 1], 98)) - hw if len(base) else 0.04
-    joint, phi_prev = np.array([0.0, max(top, 0.02)]), 0.0
+    joint, phi_prev = _first_joint(points[0], cfg), 0.0
     lengths, angles = [joint[1]], []
     for k in range(1, n + 1):
         p = points[k]
@@ -223,8 +227,7 @@ def _initial_sequential(points: list[np.ndarray], n: int, cfg: LayersConfig) -> 
     the first start's centroid misleads (a link's points bunched at one end, a fold that hides half a
     link), this one follows the points' extent instead."""
     hw = cfg.half_width_m
-    base = points[0]
-    joint = np.array([0.0, max(float(np.percentile(base[:, 1], 98)) - hw if len(base) else 0.04, 0.02)])
+    joint = _first_joint(points[0], cfg)
     phis = np.linspace(-np.pi, np.pi, cfg.directions, endpoint=False)
     axes = np.stack([np.sin(phis), np.cos(phis)], 1)
     lengths, angles, phi_prev = [joint[1]], [], 0.0
