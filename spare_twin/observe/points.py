@@ -157,9 +157,7 @@ def merged_cloud(
         depth = v.depth_m[::stride, ::stride]
         depth = np.where(depth < cfg.max_depth_m, depth, 0.0)
         K = np.asarray(v.K, np.float64).copy()
-        K[:2] /= stride
-        K[0, 2] += (1.0 / stride - 1) / 2  # pixel centres of the strided grid
-        K[1, 2] += (1.0 / stride - 1) / 2
+        K[:2] /= stride  # pixel i of the strided grid is pixel stride * i: centres stay on integers
         world = rigid(np.asarray(v.T_world_camera, np.float64), backproject(depth, K))
         mask = np.ones(len(world), bool) if keep is None else keep(world)
         world = world[mask]
