@@ -197,3 +197,23 @@ def test_a_hidden_last_link_is_the_networks():
     assert out["pred_n"].tolist() == [5, 4]
     assert np.allclose(out["lengths_e2e"][0].numpy(), [1.0, 0.4, 0.5, 0.6, 0.3, 0.5, 0.0])
     assert np.allclose(out["lengths_e2e"][1].numpy(), [1.0, 0.4, 0.5, 0.6, 0.3, 0.0, 0.0])
+
+
+@pytest.mark.parametrize("lengths, angles", CHAINS)
+def test_a_chain_blurred_by_views_out_of_register_is_not_measured(lengths, angles):
+    """A second copy of the chain turned about its foot, as views registered 40 deg apart leave it:
+    its points lie centimetres off any one chain, so there is no answer and the reason says why;
+    3 deg apart (good registration) the chain is still measured."""
+    p, v = plates(lengths, angles, np.random.default_rng(0))
+
+    def with_ghost(deg):
+        a = math.radians(deg)
+        ghost = p.copy()
+        ghost[:, [0, 2]] = p[:, [0, 2]] @ np.array([[math.cos(a), math.sin(a)], [-math.sin(a), math.cos(a)]])
+        return measure_layers(np.concatenate([p, ghost]), SCALE, view_dirs=np.concatenate([v, v]))
+
+    blurred = with_ghost(40.0)
+    assert blurred.n_links is None and blurred.lengths_pu is None
+    assert blurred.rms_m > 0.01 and "off the best chain" in blurred.reason
+    sharp = with_ghost(3.0)
+    assert sharp.n_links == len(angles) and sharp.reason is None

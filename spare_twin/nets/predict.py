@@ -206,8 +206,8 @@ def _rounded(values) -> tuple[float, ...]:
 def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale, device, progress) -> Prediction:
     """The yaw-free network on `observe.chain.observe_chain`'s profile of the recording, overruled by
     the chain measured on the points layer by layer (`observe.layers`, `nets.measured`) wherever that
-    finds one. The print scale is the flag's or the default: the recording's own object
-    configuration is never read."""
+    finds one; no answer (a `reason`) where the layers count a chain whose points lie on none. The
+    print scale is the flag's or the default: the recording's own object configuration is never read."""
     rec = Recording.open(rec_dir)
     scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
     seen = observe_chain(rec, scale, frame, camera, progress=progress)
@@ -230,9 +230,14 @@ def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale
     res = decode(model, net, {"x": x})
     timings = {**seen.timings_s, "network": round(time.perf_counter() - t0, 4)}
     t1 = time.perf_counter()
-    slots = measurement_slots(measure_profile(seen.object, seen.profile, scale))
-    res = overrule(res, {k: torch.as_tensor(v)[None] for k, v in slots.items()})
+    measurement = measure_profile(seen.object, seen.profile, scale)
     timings["measurement"] = round(time.perf_counter() - t1, 3)
+    if measurement.reason is not None:  # the network, on the same blurred points, does no better
+        return Prediction(
+            None, None, None, None, reason=f"no chain measured: {measurement.reason}", timings_s=timings, **common
+        )
+    slots = measurement_slots(measurement)
+    res = overrule(res, {k: torch.as_tensor(v)[None] for k, v in slots.items()})
     n = int(res["pred_n"][0])
     return Prediction(
         n_links=n,

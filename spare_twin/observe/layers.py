@@ -22,6 +22,8 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    its layer's points best (`_initial_sequential`). No network is needed, and folded chains do not
    trap the fit. A weak pull on the two free ends (the base's top, the last link's tip) keeps the
    shortest chain that holds the points, where the coverage tolerance alone let them drift out.
+4. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
+   to measure, and the measurement says why (a capture blurred by views out of register).
 
 Deterministic: medians, sorted KD-tree queries and scipy's least squares with fixed starts.
 """
@@ -80,6 +82,10 @@ class LayersConfig:
     root point: within the coverage tolerance nothing else holds them, and they drifted out (base
     +0.9 mm in the rig, last link +1.4-2.0 mm on hand-held captures). With it the fit keeps the
     shortest chain that holds the points; the free ends are within 0.8 mm either way."""
+    max_rms_m: float = 0.01
+    """Points farther than this (RMS, outside their plates) from the best chain are no chain to
+    measure: a capture whose views are out of register blurs a chain into a cloud 2-3 cm thick. On
+    well-registered captures the RMS stays below 9 mm (Kinect), 5 mm in the rig."""
     samples_per_link: int = 12
     directions: int = 72
     """Link directions tried by the fit's second start (`_initial_sequential`)."""
@@ -100,6 +106,9 @@ class LayerMeasurement:
     """How many link points each layer 0, 1, .. holds (for the reader of a wrong count)."""
     rms_m: float | None = None
     """RMS distance of the points outside their plates."""
+    reason: str | None = None
+    """Why a chain the layers count cannot be measured (its points do not lie on one); then
+    `n_links` is None."""
 
 
 def layer_labels(
@@ -339,6 +348,12 @@ def measure_layers(
         if n == 1 or not _top_layer_is_stray(x, layers, centre_layers[labels_n == n], n, cfg):
             break
         n -= 1
+    if rms > cfg.max_rms_m:
+        reason = (
+            f"the points lie {1000 * rms:.0f} mm (RMS) off the best chain of {n} links: "
+            "a blurred capture (its views out of register), or no chain"
+        )
+        return LayerMeasurement(None, None, None, per_layer, rms, reason)
     angles = (x[n + 2 :] + np.pi) % (2 * np.pi) - np.pi
     return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms)
 
