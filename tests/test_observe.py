@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from spare_twin.observe.chain import observe_chain
+from spare_twin.observe.chain import measured_chain, observe_chain
+from spare_twin.observe.layers import measure_profile
 from spare_twin.observe.points import PointsConfig, PosedView, merged_cloud, object_points
 from spare_twin.observe.profile import chain_profile
 from spare_twin.recording import Recording
@@ -144,3 +145,28 @@ def test_observation_is_deterministic(rig_rec):
     assert np.array_equal(a.object.points_m, b.object.points_m)
     assert np.array_equal(a.profile.image, b.profile.image)
     assert np.array_equal(a.T_world_profile, b.T_world_profile)
+
+
+def test_a_sweep_that_does_not_fuse_as_a_whole_is_measured_from_a_part(printed_object, tmp_path):
+    """A hand-held sweep without poses whose second half sees the object in another pose (it was
+    bumped halfway round): fused whole it is two chains and gives none; `measured_chain` registers
+    its parts alone and measures the chain from the part that holds one."""
+    from spare_twin.cli import main
+
+    sweep = ["--path", "handheld", "--noise", "realsense_sr300", "--resolution", "320x240", "--frames", "12"]
+    for seed in (1, 2):  # each seed holds the chain in its own pose
+        argv = ["render", str(printed_object.root), "--out", str(tmp_path / f"s{seed}"), *sweep, "--hide-poses"]
+        assert main([*argv, "--seed", str(seed)]) == 0
+    for kind in ("color", "depth"):
+        for i in range(6, 12):
+            name = f"cameras/cam0/{kind}/{i:06d}.png"
+            (tmp_path / "s1" / name).write_bytes((tmp_path / "s2" / name).read_bytes())
+    rec = Recording.open(tmp_path / "s1")
+
+    whole = observe_chain(rec, PRINT_SCALE)
+    assert whole.reason is not None or measure_profile(whole.object, whole.profile, PRINT_SCALE).n_links is None
+    seen, measured = measured_chain(rec, PRINT_SCALE)
+    assert measured.n_links == 2 and measured.reason is None
+    truth_pu = np.asarray(rec.object_config["link_lengths_m"])
+    assert np.abs(measured.lengths_pu - truth_pu).max() < 0.06
+    assert seen.source.startswith("sweep, registered, frames ") and seen.views < 12

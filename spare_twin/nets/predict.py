@@ -22,8 +22,7 @@ from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.measured import measurement_slots, overrule
 from spare_twin.nets.models import decode, model_inputs
 from spare_twin.nets.presets import NetConfig
-from spare_twin.observe.chain import observe_chain
-from spare_twin.observe.layers import measure_profile
+from spare_twin.observe.chain import measured_chain
 from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE, InputSpec, NetworkInput, observe_recording
 from spare_twin.recording import Recording
 
@@ -204,13 +203,15 @@ def _rounded(values) -> tuple[float, ...]:
 
 
 def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale, device, progress) -> Prediction:
-    """The yaw-free network on `observe.chain.observe_chain`'s profile of the recording, overruled by
+    """The yaw-free network on `observe.chain.measured_chain`'s profile of the recording, overruled by
     the chain measured on the points layer by layer (`observe.layers`, `nets.measured`) wherever that
     finds one; no answer (a `reason`) where the layers count a chain whose points lie on none. The
     print scale is the flag's or the default: the recording's own object configuration is never read."""
     rec = Recording.open(rec_dir)
     scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
-    seen = observe_chain(rec, scale, frame, camera, progress=progress)
+    t0 = time.perf_counter()
+    seen, measurement = measured_chain(rec, scale, frame, camera, progress=progress)
+    measurement_s = time.perf_counter() - t0 - sum(seen.timings_s.values())
     common = dict(
         input=f"profile ({seen.source}, {seen.views} views)",
         yaw_hypotheses_deg=(),
@@ -229,9 +230,7 @@ def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale
     x = torch.from_numpy(seen.profile.image[None]).to(device)
     res = decode(model, net, {"x": x})
     timings = {**seen.timings_s, "network": round(time.perf_counter() - t0, 4)}
-    t1 = time.perf_counter()
-    measurement = measure_profile(seen.object, seen.profile, scale)
-    timings["measurement"] = round(time.perf_counter() - t1, 3)
+    timings["measurement"] = round(max(measurement_s, 0.0), 3)
     if measurement.reason is not None:  # the network, on the same blurred points, does no better
         return Prediction(
             None, None, None, None, reason=f"no chain measured: {measurement.reason}", timings_s=timings, **common
