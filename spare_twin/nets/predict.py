@@ -209,9 +209,7 @@ def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale
     print scale is the flag's or the default: the recording's own object configuration is never read."""
     rec = Recording.open(rec_dir)
     scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
-    t0 = time.perf_counter()
     seen, measurement = measured_chain(rec, scale, frame, camera, progress=progress)
-    measurement_s = time.perf_counter() - t0 - sum(seen.timings_s.values())
     common = dict(
         input=f"profile ({seen.source}, {seen.views} views)",
         yaw_hypotheses_deg=(),
@@ -230,7 +228,6 @@ def _predict_profile(rec_dir, model, net, model_path, frame, camera, print_scale
     x = torch.from_numpy(seen.profile.image[None]).to(device)
     res = decode(model, net, {"x": x})
     timings = {**seen.timings_s, "network": round(time.perf_counter() - t0, 4)}
-    timings["measurement"] = round(max(measurement_s, 0.0), 3)
     if measurement.reason is not None:  # the network, on the same blurred points, does no better
         return Prediction(
             None, None, None, None, reason=f"no chain measured: {measurement.reason}", timings_s=timings, **common

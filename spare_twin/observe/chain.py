@@ -58,6 +58,10 @@ class ChainObservation:
         return self.object.T_world_table @ self.profile.T_table_profile
 
 
+#: `recording_views`' source for a sweep whose poses it registered itself.
+REGISTERED_SWEEP = "sweep, registered"
+
+
 def recording_views(
     rec: Recording,
     frame: int | None = None,
@@ -81,7 +85,8 @@ def recording_views(
         return views, "cameras", 0.0
     cam = rec.camera(camera or rec.cameras[0].name)
     picks = np.unique(np.linspace(0, rec.n_frames - 1, min(max_frames, rec.n_frames)).round().astype(int)).tolist()
-    picks = picks[int(part[0] * len(picks)) : max(int(np.ceil(part[1] * len(picks))), int(part[0] * len(picks)) + 1)]
+    start = int(part[0] * len(picks))
+    picks = picks[start : max(int(np.ceil(part[1] * len(picks))), start + 1)]
     poses = rec.camera_poses(cam.name)
     seconds = 0.0
     source = "sweep"
@@ -92,7 +97,7 @@ def recording_views(
         frames = load_frames(rec, cam.name, picks)
         poses_picked = register_frames(frames, RegistrationConfig(), None, progress).poses
         seconds = time.perf_counter() - t0
-        source = "sweep, registered"
+        source = REGISTERED_SWEEP
         views = [
             PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), cam.K, P, fr.color)
             for fr, P in zip(frames, poses_picked)
@@ -152,7 +157,8 @@ CLEAN_PART_RMS_M = 0.002
 def measured_chain(
     rec: Recording, print_scale: float, frame: int | None = None, camera: str | None = None, progress: bool = False
 ) -> tuple[ChainObservation, LayerMeasurement]:
-    """`observe_chain` and its layer measurement (`observe.layers.measure_profile`).
+    """`observe_chain` and its layer measurement (`observe.layers.measure_profile`); the observation's
+    `timings_s` gain "measurement", all summed over the parts looked at.
 
     A sweep registered here that gives no chain as a whole (the fused object too wide, not standing on
     a 12 mm column, or blurred centimetres off any chain) is looked at again in parts: its first half,
@@ -163,14 +169,12 @@ def measured_chain(
     of a sweep before (or after) the object was bumped. On the development captures that got no answer this way
     (seeds 12013, 14013, 14018, 15013) every one was counted right from one of its parts. A recording
     with its own poses, one frame or a rig is not split: its views are placed as given."""
-    seen = observe_chain(rec, print_scale, frame, camera, progress=progress)
-    measured = _measure(seen, print_scale)
-    if measured.n_links is not None or seen.source != "sweep, registered" or seen.views < MIN_FRAMES_TO_SPLIT:
+    seen, measured = _observe_and_measure(rec, print_scale, frame, camera, progress, (0.0, 1.0))
+    if measured.n_links is not None or seen.source != REGISTERED_SWEEP or seen.views < MIN_FRAMES_TO_SPLIT:
         return seen, measured
     best, seconds = None, dict(seen.timings_s)
     for part in SWEEP_PARTS:
-        piece = observe_chain(rec, print_scale, frame, camera, progress=progress, part=part)
-        m = _measure(piece, print_scale)
+        piece, m = _observe_and_measure(rec, print_scale, frame, camera, progress, part)
         seconds = {k: round(seconds[k] + piece.timings_s[k], 3) for k in seconds}
         if m.n_links is not None and (best is None or m.rms_m < best[1].rms_m):
             share = (
@@ -183,7 +187,12 @@ def measured_chain(
     return dataclasses.replace(seen, timings_s=seconds), measured
 
 
-def _measure(seen: ChainObservation, print_scale: float) -> LayerMeasurement:
+def _observe_and_measure(rec, print_scale, frame, camera, progress, part) -> tuple[ChainObservation, LayerMeasurement]:
+    seen = observe_chain(rec, print_scale, frame, camera, progress=progress, part=part)
+    t0 = time.perf_counter()
     if seen.reason is not None:
-        return LayerMeasurement(None, None, None, ())
-    return measure_profile(seen.object, seen.profile, print_scale)
+        measured = LayerMeasurement(None, None, None, ())
+    else:
+        measured = measure_profile(seen.object, seen.profile, print_scale)
+    timings = {**seen.timings_s, "measurement": round(time.perf_counter() - t0, 3)}
+    return dataclasses.replace(seen, timings_s=timings), measured
