@@ -100,6 +100,32 @@ def test_resume_continues_exactly(synthetic_data, tmp_path):
         assert torch.equal(a["state_dict"][k], b["state_dict"][k]), k
 
 
+def test_training_stops_once_validation_stops_improving(synthetic_data, tmp_path, capsys):
+    """A learning rate too small to change anything: validation never improves on epoch 1, so with
+    patience 2 the run ends after epoch 3 of 20, and model.pt is epoch 1's."""
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(
+        json.dumps(
+            {
+                "preset": "geo-depth-mv-count",
+                "net": {"channels": [4, 8], "fc_hidden": 16, "dropout": 0.0},
+                "train": {"epochs": 20, "batch_size": 8, "samples_per_epoch": 16, "val_samples": 16, "threads": 1},
+            }
+        )
+    )
+    argv = ["train", "--config", str(cfg), "--data", str(synthetic_data), "--out", str(tmp_path / "run")]
+    code, out, err = run_cli([*argv, "--lr", "1e-12", "--patience", "2", "--json"], capsys)
+    assert code == 0, err
+    assert "stopping early" in err
+    hist = json.loads((tmp_path / "run" / "history.json").read_text())
+    assert len(hist) == 3 and json.loads(out)["best_epoch"] == 1
+    from spare_twin.nets.train import epochs_since_best
+
+    assert epochs_since_best(hist) == 2
+    assert epochs_since_best([{"val_count_accuracy": 0.2}, {"val_count_accuracy": 0.5}]) == 0
+    assert epochs_since_best([{"train_loss": 1.0}, {"train_loss": 2.0}, {"train_loss": 1.5}]) == 2
+
+
 def test_fine_tune_starts_from_a_checkpoint(trained, synthetic_data, tmp_path):
     from spare_twin.errors import SpareTwinError
     from spare_twin.nets import checkpoint as ckpt
@@ -146,3 +172,37 @@ def test_force_replaces_a_foreign_run_folder_once_training_is_complete(synthetic
     # the data folder is never replaced, force or not
     with pytest.raises(SpareTwinError, match="data folder"):
         train(preset, synthetic_data, Path(synthetic_data) / "run", progress=False, force=True)
+
+
+def test_batchnorm_recalibration_touches_only_the_running_statistics(synthetic_data):
+    from spare_twin.nets.data import open_split
+    from spare_twin.nets.models import build_model
+    from spare_twin.nets.presets import resolve
+    from spare_twin.nets.train import recalibrate_batchnorm
+
+    net = resolve("geo-depth-mv-count", {"net": {"channels": [4, 8], "fc_hidden": 16}}).net
+    torch.manual_seed(0)
+    model = build_model(net)
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    rng = torch.get_rng_state()
+    recalibrate_batchnorm(model, net, open_split(synthetic_data, "train", net), 40, 8, 0, "cpu")
+    after = model.state_dict()
+    assert torch.equal(torch.get_rng_state(), rng)  # the training that follows draws the same numbers
+    bn_stats = [k for k in after if k.endswith(("running_mean", "running_var"))]
+    assert bn_stats and all(not torch.equal(before[k], after[k]) for k in bn_stats)
+    assert all(int(v) == 5 for k, v in after.items() if k.endswith("num_batches_tracked"))  # 40 / 8 batches
+    assert all(torch.equal(before[k], after[k]) for k in after if "running" not in k and "batches" not in k)
+    assert model.training
+
+
+def test_a_checkpoint_from_before_a_new_network_field_still_resumes():
+    import dataclasses
+
+    from spare_twin.nets.presets import get_preset
+    from spare_twin.nets.train import _same_net
+
+    net = get_preset("geo-grey-mv-multitask").net
+    old = dataclasses.asdict(net)
+    del old["lift_extremes"]  # a field added after the run started: its default is what ran
+    assert _same_net({"net": old}, net)
+    assert not _same_net({"net": {**old, "lift_features": 5}}, net)

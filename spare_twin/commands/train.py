@@ -17,6 +17,7 @@ OVERRIDE_FLAGS = {
     "lr": "--lr",
     "seed": "--seed",
     "samples_per_epoch": "--samples-per-epoch",
+    "patience": "--patience",
     "workers": "--workers",
     "threads": "--threads",
 }
@@ -44,6 +45,11 @@ def register(sub) -> None:
     p.add_argument("--batch-size", type=int, help="override the preset's batch size")
     p.add_argument("--lr", type=float, help="override the preset's learning rate")
     p.add_argument("--samples-per-epoch", type=int, help="training samples drawn per epoch (default: the preset's)")
+    p.add_argument(
+        "--patience",
+        type=int,
+        help="stop once validation has not improved for this many epochs (the run then ends before --epochs)",
+    )
     p.add_argument("--seed", type=int, help="override the preset's seed (init, sample order)")
     p.add_argument("--workers", type=int, help="DataLoader worker processes")
     p.add_argument("--threads", type=int, help="torch CPU threads")
@@ -94,6 +100,7 @@ def run(args) -> int:
             "lr": args.lr,
             "seed": args.seed,
             "samples_per_epoch": args.samples_per_epoch,
+            "patience": args.patience,
             "workers": args.workers,
             "threads": args.threads,
         }.items()

@@ -43,6 +43,8 @@ def augmentation(tr: TrainConfig | None) -> dict:
     out = {}
     if tr.depth_noise:
         out["depth_noise"] = load_noise(tr.depth_noise, flag="train.depth_noise")
+    if tr.grey_jitter:
+        out["jitter_grey"] = True
     if tr.pose_yaw_jitter_deg or tr.pose_xy_jitter_m:
         out["pose_jitter"] = PoseJitter(tr.pose_yaw_jitter_deg, tr.pose_xy_jitter_m)
     return out

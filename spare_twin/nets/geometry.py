@@ -93,3 +93,59 @@ def voxelize(
         out.index_add_(0, flat[ok], w[ok])
     out = out.reshape(B, n_channels, nz, ny, nx)
     return 1.0 - torch.exp(-out / 2.0)
+
+
+def voxel_centres_pu(grid: GridConfig, device=None) -> torch.Tensor:
+    """(Z*Y*X, 3) centres of the grid's voxels in paper units, x fastest (the order `voxelize` fills)."""
+    nx, ny, nz = grid.cells
+    axes = [
+        torch.linspace(lo + (hi - lo) / (2 * n), hi - (hi - lo) / (2 * n), n, device=device)
+        for (lo, hi), n in ((grid.z_range, nz), (grid.y_range, ny), (grid.x_range, nx))
+    ]
+    z, y, x = torch.meshgrid(*axes, indexing="ij")
+    return torch.stack([x, y, z], -1).reshape(-1, 3)
+
+
+#: Voxels closer to a camera than this (metres, along its axis) are not in its view.
+NEAR_M = 0.01
+
+
+def lift(
+    features: torch.Tensor,
+    K: torch.Tensor,
+    T_world_camera: torch.Tensor,
+    print_scale: torch.Tensor,
+    grid: GridConfig,
+    stride: int,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Image features sampled at every voxel's projection into every view.
+
+    features (B, V, C, h, w) computed from (H, W) images by convolutions of total `stride` (feature
+    pixel j is centred on image pixel stride * j); K (B, V, 3, 3) of the images; T (B, V, 4, 4).
+    Returns values (B, V, C, N) (bilinear, zero outside the view) and seen (B, V, 1, N) float, the
+    voxels in front of the camera that project into its image (or within half a feature pixel of its
+    edge), N = Z*Y*X in `voxel_centres_pu` order.
+    """
+    B, V, C, h, w = features.shape
+    centres_m = voxel_centres_pu(grid, features.device)[None] * print_scale.float().reshape(B, 1, 1)  # (B, N, 3)
+    R, t = T_world_camera[..., :3, :3].float(), T_world_camera[..., :3, 3].float()
+    # camera-frame points: R^T (p - t), for every view
+    p_cam = torch.einsum("bvji,bvnj->bvni", R, centres_m[:, None] - t[:, :, None])
+    z = p_cam[..., 2]
+    in_front = z > NEAR_M
+    z = torch.where(in_front, z, torch.ones_like(z))
+    K = K.float()
+    u = K[..., 0, 0, None] * p_cam[..., 0] / z + K[..., 0, 2, None]
+    v = K[..., 1, 1, None] * p_cam[..., 1] / z + K[..., 1, 2, None]
+    # feature-map pixel coordinates, then grid_sample's [-1, 1] (align_corners=False: pixel edges);
+    # voxels behind the camera are sent off the image, where the zero padding answers for them
+    gx = torch.where(in_front, (2 * (u / stride) + 1) / w - 1, torch.full_like(u, 3.0))
+    gy = (2 * (v / stride) + 1) / h - 1
+    # seen: wherever the zero-padded bilinear sample can be non-zero (up to half a pixel past the
+    # image's edge), so that every view not counted as seeing a voxel adds exactly 0 to its sums
+    seen = (gx.abs() < 1 + 1 / w) & (gy.abs() < 1 + 1 / h)
+    g = torch.stack([gx, gy], -1).reshape(B * V, 1, -1, 2)
+    values = torch.nn.functional.grid_sample(
+        features.reshape(B * V, C, h, w), g, mode="bilinear", padding_mode="zeros", align_corners=False
+    ).reshape(B, V, C, -1)
+    return values, seen.float()[:, :, None]

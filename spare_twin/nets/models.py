@@ -1,5 +1,6 @@
 """The networks: the paper's Conv3D and CNN-LSTM baselines, the per-count length regressors and their
-naive combination, the end-to-end regressor, and the geometry-aware voxel-fusion network.
+naive combination, the end-to-end regressor, the geometry-aware voxel-fusion network (depth), the
+yaw-free profile network; the grey lifting network lives in grey_lift.py.
 
 Every network takes the docs/design.md sample fields as keyword tensors and returns a dict with any of
 ``count_logits`` (B, 6), ``lengths`` (B, 7, paper units) and ``angles`` (B, 6, rad). `decode` turns
@@ -11,26 +12,13 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from spare_twin.nets.blocks import N_CLASSES, SLOTS, TYPICAL_LENGTHS_PU, InputNorm, task_heads, voxel_cnn, voxel_fc
 from spare_twin.nets.geometry import voxelize
+from spare_twin.nets.grey_lift import GreyLiftNet
 from spare_twin.nets.presets import NetConfig
 
-N_CLASSES = 6
-SLOTS = 7
 #: ProfileNet's convolutions that halve the resolution (64 x 80 -> 8 x 10 with the preset's five).
 PROFILE_STRIDES = (0, 1, 3)
-
-
-class InputNorm(nn.Module):
-    """(x - mean) / std with constants measured on the training data, kept in the state_dict so a
-    checkpoint carries its own normalisation."""
-
-    def __init__(self):
-        super().__init__()
-        self.register_buffer("mean", torch.zeros(()))
-        self.register_buffer("std", torch.ones(()))
-
-    def forward(self, x):
-        return (x - self.mean) / self.std
 
 
 def paper_head(in_features: int, out: int, hidden: int, dropout: float) -> nn.Sequential:
@@ -181,37 +169,9 @@ class GeoVoxelNet(nn.Module):
         self.cfg = cfg
         self.grid = cfg.grid
         cin = cfg.grid.time_bins if cfg.mode == "tmp" else 1
-        ch = cfg.channels
-        layers = [nn.Conv3d(cin, ch[0], 3, padding=1, bias=False), nn.BatchNorm3d(ch[0]), nn.ReLU(inplace=True)]
-        for a, b in zip(ch, ch[1:]):
-            layers += [
-                nn.Conv3d(a, b, 3, stride=2, padding=1, bias=False),
-                nn.BatchNorm3d(b),
-                nn.ReLU(inplace=True),
-                nn.Conv3d(b, b, 3, padding=1, bias=False),
-                nn.BatchNorm3d(b),
-                nn.ReLU(inplace=True),
-            ]
-        # squeeze channels before flattening: position matters (heights, extents), so no global pool
-        layers += [nn.Conv3d(ch[-1], 32, 1), nn.ReLU(inplace=True)]
-        self.cnn = nn.Sequential(*layers)
-        nx, ny, nz = cfg.grid.cells
-        for _ in ch[1:]:
-            nx, ny, nz = (nx + 1) // 2, (ny + 1) // 2, (nz + 1) // 2
-        self.fc = nn.Sequential(
-            nn.Flatten(), nn.Linear(32 * nx * ny * nz, cfg.fc_hidden), nn.ReLU(inplace=True), nn.Dropout(cfg.dropout)
-        )
-        self.heads = nn.ModuleDict()
-        if cfg.task in ("count", "multitask"):
-            self.heads["count_logits"] = nn.Linear(cfg.fc_hidden, N_CLASSES)
-        if cfg.task in ("lengths", "e2e", "multitask"):
-            self.heads["lengths"] = nn.Linear(cfg.fc_hidden, SLOTS)
-            # start at the label distribution's typical chain (base ~1.6, links ~0.5), not at 0:
-            # otherwise the first epoch is spent learning the mean and swamps the count loss
-            with torch.no_grad():
-                self.heads["lengths"].bias.copy_(torch.tensor([1.6, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5]))
-        if cfg.predict_angles and cfg.mode == "mv":
-            self.heads["angles"] = nn.Linear(cfg.fc_hidden, N_CLASSES)
+        self.cnn = voxel_cnn(cin, cfg.channels)
+        self.fc = voxel_fc(cfg.grid.cells, len(cfg.channels) - 1, cfg.fc_hidden, cfg.dropout)
+        self.heads = task_heads(cfg, angles=cfg.predict_angles and cfg.mode == "mv")
 
     def grid_of(self, x, K, T_world_camera, print_scale):
         if self.cfg.mode == "tmp":
@@ -262,7 +222,7 @@ class ProfileNet(nn.Module):
             {"count_logits": nn.Linear(cfg.fc_hidden, N_CLASSES), "lengths": nn.Linear(cfg.fc_hidden, SLOTS)}
         )
         with torch.no_grad():
-            self.heads["lengths"].bias.copy_(torch.tensor([1.6, 0.5, 0.5, 0.5, 0.5, 0.5, 0.5]))
+            self.heads["lengths"].bias.copy_(torch.tensor(TYPICAL_LENGTHS_PU))
         if cfg.predict_angles:
             self.heads["angles_sincos"] = nn.Linear(cfg.fc_hidden, 2 * N_CLASSES)
 
@@ -281,6 +241,8 @@ def build_model(cfg: NetConfig) -> nn.Module:
         return ProfileNet(cfg)
     if cfg.arch == "geo_voxel":
         return GeoVoxelNet(cfg)
+    if cfg.arch == "grey_lift":
+        return GreyLiftNet(cfg)
     if cfg.arch == "conv3d_per_n":
         return PerCountRegressors(cfg)
     if cfg.arch == "naive":

@@ -76,7 +76,7 @@ class Prediction:
 
 def input_spec(net: NetConfig) -> InputSpec:
     """What `net` reads, in observe's terms."""
-    return InputSpec(net.input, net.mode, net.frames, net.height, net.width, posed=net.arch == "geo_voxel")
+    return InputSpec(net.input, net.mode, net.frames, net.height, net.width, posed=net.posed)
 
 
 def to_batch(inputs: Sequence[NetworkInput]) -> dict:

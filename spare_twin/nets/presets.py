@@ -14,7 +14,9 @@ from dataclasses import dataclass, field
 
 from spare_twin.errors import SpareTwinError
 
-ARCHS = ("conv3d", "cnn_lstm", "conv3d_per_n", "naive", "geo_voxel", "profile")
+ARCHS = ("conv3d", "cnn_lstm", "conv3d_per_n", "naive", "geo_voxel", "grey_lift", "profile")
+#: The networks that fuse views through the cameras' poses (they read K, T_world_camera, print_scale).
+POSED_ARCHS = ("geo_voxel", "grey_lift")
 TASKS = ("count", "lengths", "e2e", "multitask")
 INPUTS = ("depth", "grey")
 MODES = ("mv", "tmp", "profile")
@@ -71,17 +73,30 @@ class NetConfig:
     dropout: float = 0.3
     predict_angles: bool = False
     """multitask: also regress the joint angles (rad) of the time step (mv only)."""
+    lift_features: int = 8
+    """grey_lift: features per view lifted into the grid (the last is the grey value itself)."""
+    lift_extremes: bool = False
+    """grey_lift, mv: besides the mean and variance over the views, their minimum and maximum."""
     e2e_slot_threshold: float = 0.05
     """e2e: a slot predicted shorter than this (paper units) ends the chain. Sampled moving links are
     never shorter than 0.3 * 3/8 = 0.11 after the paper's rescaling."""
     grid: GridConfig = field(default_factory=GridConfig)
+
+    @property
+    def posed(self) -> bool:
+        """The network fuses views through their poses."""
+        return self.arch in POSED_ARCHS
 
     def __post_init__(self):
         for name, allowed in (("arch", ARCHS), ("task", TASKS), ("input", INPUTS), ("mode", MODES)):
             if getattr(self, name) not in allowed:
                 raise SpareTwinError(f"net.{name}: {getattr(self, name)!r} is not one of {', '.join(allowed)}")
         if self.arch == "geo_voxel" and self.input != "depth":
-            raise SpareTwinError("net.input: geo_voxel back-projects depth; grey has no geometry")
+            raise SpareTwinError("net.input: geo_voxel back-projects depth; for grey views use grey_lift")
+        if self.arch == "grey_lift" and self.input != "grey":
+            raise SpareTwinError("net.input: grey_lift lifts grey views; for depth use geo_voxel")
+        if self.arch == "grey_lift" and (self.mode not in ("mv", "tmp") or self.lift_features < 2):
+            raise SpareTwinError("net.lift_features: grey_lift needs at least 2 (mode mv or tmp)")
         if self.arch in ("conv3d_per_n",) and self.task != "lengths":
             raise SpareTwinError("net.task: conv3d_per_n regresses lengths with n known (task lengths)")
         if self.arch == "naive" and self.task != "e2e":
@@ -107,6 +122,14 @@ class TrainConfig:
     """Draw this many training samples per epoch (random, seeded by epoch); None = the whole split."""
     val_samples: int | None = 2000
     """Validate on at most this many validation samples (a fixed, seeded subset)."""
+    bn_recalibration_samples: int | None = None
+    """Before every validation, recompute BatchNorm's running statistics over this many training
+    samples (a fixed, seeded subset) with the epoch's final weights; the weights are untouched. For
+    networks whose statistics move faster than the running averages follow (the grey lifting
+    network counted 0.26 of validation samples right with the running averages, 0.84 with the
+    same weights recalibrated)."""
+    patience: int | None = None
+    """Stop early once validation has not improved for this many epochs (None: run all `epochs`)."""
     count_weight: float = 1.0
     length_weight: float = 10.0
     """Lengths are squared paper units (~0.01..1); this puts their loss on the count loss's scale."""
@@ -117,6 +140,8 @@ class TrainConfig:
     depth_noise: str | None = None
     """Sim-to-real: the depth-sensor noise model (capture/rigs/noise_NAME.json, e.g. realsense_sr300)
     applied to training depth images at read time."""
+    grey_jitter: bool = False
+    """Grey input: random gain, offset and gamma per sample (exposure and lighting)."""
     pose_yaw_jitter_deg: float = 0.0
     """Sim-to-real: the camera poses of a training sample turned about the table normal by up to this
     much (the yaw error of a real recording's estimated object frame)."""
@@ -128,6 +153,9 @@ class TrainConfig:
     """DataLoader worker processes (0: load in the training process)."""
     threads: int = 0
     """torch intra-op threads (0: leave torch's default)."""
+    channels_last: bool = False
+    """Convolutions in channels-last layout (NHWC / NDHWC); the same results, at another speed
+    (`spare-twin bench training` measures which)."""
 
     def __post_init__(self):
         # Errors name the field as a configuration file spells it (train.<field>).
@@ -149,9 +177,12 @@ class TrainConfig:
 
         for name in ("epochs", "batch_size"):
             whole(name, 1)
+        for name in ("grey_jitter", "channels_last"):
+            if not isinstance(getattr(self, name), bool):
+                raise SpareTwinError(f"train.{name} {getattr(self, name)!r}: must be true or false")
         for name in ("seed", "workers", "threads"):
             whole(name, 0)
-        for name in ("samples_per_epoch", "val_samples"):
+        for name in ("samples_per_epoch", "val_samples", "patience", "bn_recalibration_samples"):
             whole(name, 1, optional=True)
         number("lr", positive=True)
         for name in ("weight_decay", "count_weight", "length_weight", "angle_weight"):
@@ -181,6 +212,14 @@ def _p(name, net, train=None, description="", row=None, result=None, metric=None
 
 
 _TMP = dict(mode="tmp", frames=100)
+#: The temporal grey network's grid: half as many cells across the plane of motion (0.1 paper units,
+#: as along x and z). One camera's rays cannot place anything across that plane, and lifting costs
+#: per voxel. (Multi-view keeps 0.05: a link is 6 mm thick, and a voxel centre 4 mm off its
+#: mid-plane falls outside it in some views, which thins the links out of the views' agreement.)
+GREY_GRID = GridConfig(cells=(38, 16, 32))
+#: The voxel networks' 3D CNN and head sizes.
+_VOXEL_CNN = dict(channels=(16, 32, 64, 96), fc_hidden=256, dropout=0.1)
+_GREY_TRAIN = TrainConfig(epochs=12, batch_size=16, lr=2e-3, samples_per_epoch=4000, grey_jitter=True)
 _TMP_TRAIN = TrainConfig(epochs=15, batch_size=8)
 
 PRESETS: dict[str, Preset] = {
@@ -325,6 +364,22 @@ PRESETS: dict[str, Preset] = {
             "(`observe.profile`, 3 channels); a small 2D CNN predicts count, 7-slot lengths and joint angles. "
             "Trained on rig renders with hand-held-like arcs, fitted sensor noise, registration error, "
             "clutter and the whole circle of yaw (`nets.profile_train`)",
+        ),
+        _p(
+            "geo-grey-mv-multitask",
+            NetConfig("grey_lift", "multitask", "grey", predict_angles=True, **_VOXEL_CNN),
+            _GREY_TRAIN,
+            "grey cameras with known poses: each of the 8 views through a small 2D CNN, the features lifted "
+            "along the camera rays into the world voxel grid (paper units), their mean and variance over the "
+            "views (depth shows where the views agree); a 3D CNN predicts count, 7-slot lengths and joint angles",
+        ),
+        _p(
+            "geo-grey-tmp-multitask",
+            NetConfig("grey_lift", "multitask", "grey", lift_features=4, grid=GREY_GRID, **_VOXEL_CNN, **_TMP),
+            _GREY_TRAIN,
+            "one grey camera's 100 frames: 10 evenly spaced frames' features lifted along its rays into the "
+            "world grid as separate channels (the chain's plane shows it to scale, the channels show what "
+            "moves together); count + 7-slot lengths",
         ),
         _p(
             "geo-depth-mv-count",

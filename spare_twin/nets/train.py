@@ -35,7 +35,7 @@ from spare_twin.nets.data import dataset_rig, open_on_the_fly, open_split
 from spare_twin.nets.distributed import Group, session
 from spare_twin.nets.measured import overrule
 from spare_twin.nets.models import build_model, decode, input_norms, model_inputs
-from spare_twin.nets.presets import NetConfig, Preset, TrainConfig
+from spare_twin.nets.presets import NetConfig, Preset, TrainConfig, net_from_dict
 from spare_twin.output import writing
 
 
@@ -60,6 +60,16 @@ def compute_loss(net: NetConfig, tr: TrainConfig, out: dict, batch: dict, device
             mask = torch.arange(6, device=device)[None] < n[:, None]
             loss = loss + tr.angle_weight * (((out["angles"] - ang) ** 2) * mask).sum(1).mean()
     return loss
+
+
+def to_channels_last(model: nn.Module) -> nn.Module:
+    """`model` with its convolutions' weights in channels-last layout (activations follow them)."""
+    for m in model.modules():
+        if isinstance(m, nn.Conv2d):
+            m.to(memory_format=torch.channels_last)
+        elif isinstance(m, nn.Conv3d):
+            m.to(memory_format=torch.channels_last_3d)
+    return model
 
 
 def forward_train(model, net: NetConfig, batch: dict, device) -> dict:
@@ -124,6 +134,30 @@ def summarize(pred: dict) -> dict:
     return out
 
 
+@torch.no_grad()
+def recalibrate_batchnorm(model: nn.Module, net: NetConfig, ds, samples: int, batch_size: int, seed: int, dev) -> None:
+    """Recompute every BatchNorm's running mean and variance as the plain average over `samples` items
+    of `ds` (a fixed subset seeded by `seed`), the model in training mode. Only buffers change, and the
+    global RNG is restored afterwards, so the training that follows is the same as without this."""
+    bns = [m for m in model.modules() if isinstance(m, nn.modules.batchnorm._BatchNorm)]
+    if not bns:
+        return
+    momenta = [m.momentum for m in bns]
+    for m in bns:
+        m.reset_running_stats()
+        m.momentum = None  # a cumulative average over the batches below
+    idx = torch.randperm(len(ds), generator=torch.Generator().manual_seed(seed))[:samples].tolist()
+    was_training = model.training
+    model.train()
+    with torch.random.fork_rng():
+        for batch in DataLoader(Subset(ds, idx), batch_size=batch_size):
+            if batch["x"].shape[0] > 1:
+                forward_train(model, net, batch, dev)
+    for m, momentum in zip(bns, momenta):
+        m.momentum = momentum
+    model.train(was_training)
+
+
 def _score(m: dict) -> float:
     s = 0.0
     if m.get("count_accuracy") is not None:
@@ -131,6 +165,19 @@ def _score(m: dict) -> float:
     if m.get("E_L") is not None:
         s -= m["E_L"]
     return s
+
+
+def _row_score(row: dict) -> float:
+    """An epoch's score from its history row: `_score` of its validation metrics, or minus the
+    training loss where there was no validation (the same rule that picks best.pt)."""
+    val = {k[4:]: v for k, v in row.items() if k.startswith("val_")}
+    return _score(val) if val else -(row["train_loss"] or 0.0)
+
+
+def epochs_since_best(history: list[dict]) -> int:
+    """Epochs run since the best one (0: the last epoch is the best so far)."""
+    scores = [_row_score(r) for r in history]
+    return len(scores) - 1 - int(np.argmax(scores)) if scores else 0
 
 
 def _epoch_indices(n_data: int, tr: TrainConfig, epoch: int) -> list[int]:
@@ -243,6 +290,14 @@ def train(
         return _train(preset, data_dir, out_dir, dev, group, on_the_fly, resume, command, progress)
 
 
+def _same_net(checkpoint: dict, net: NetConfig) -> bool:
+    """The checkpoint's network configuration is `net` (fields it predates take their defaults)."""
+    try:
+        return net_from_dict(checkpoint.get("net") or {}) == net
+    except SpareTwinError:
+        return False
+
+
 def _replaceable(out_dir: Path, data_dir) -> bool:
     """A run folder problem that `force` may settle: any but touching the data folder."""
     return not _touches_data(out_dir, data_dir) and _run_folder_problem(out_dir, data_dir, resume=False) is not None
@@ -279,10 +334,7 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
     start_epoch, best_score, train_time_s = 0, -math.inf, 0.0
 
     if state is not None:
-        if (
-            state.get("preset") != preset.name
-            or state.get("net") != ckpt.model_record(preset.name, net, tr, model, {})["net"]
-        ):
+        if state.get("preset") != preset.name or not _same_net(state, net):
             raise SpareTwinError(f"resume: {last_path} was trained with a different network configuration")
         model.load_state_dict(state["state_dict"])
         opt.load_state_dict(state["optimizer"])
@@ -293,7 +345,7 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
         meta = state["meta"]
     elif tr.init_from:
         start = ckpt.load(tr.init_from, dev)
-        if start.get("net") != ckpt.model_record(preset.name, net, tr, model, {})["net"]:
+        if not _same_net(start, net):
             raise SpareTwinError(f"init_from {tr.init_from}: trained with a different network configuration")
         model.load_state_dict(start["state_dict"])  # its input normalisation comes with it
         meta["init_from"] = {
@@ -304,6 +356,8 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
     else:
         measure_normalization(model, train_src, tr.seed)
 
+    if tr.channels_last:
+        model = to_channels_last(model)
     core = model  # the module itself: validated and saved; `model` is what trains (DDP-wrapped in a group)
     if group.active:
         # Some heads get no gradient on some batches (per-count regressors, angles of temporal input).
@@ -317,8 +371,12 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
             : tr.val_samples
         ].tolist()
 
-    writer = _RunWriter(preset, core, opt, val_ds, val_idx, dev, out_dir, progress) if main else None
+    writer = _RunWriter(preset, core, opt, val_ds, val_idx, dev, out_dir, progress, train_src) if main else None
     for epoch in range(start_epoch, tr.epochs):
+        if tr.patience is not None and group.broadcast(epochs_since_best(history) if main else None) >= tr.patience:
+            if progress:
+                print(f"stopping early: validation has not improved for {tr.patience} epochs", file=sys.stderr)
+            break
         t0 = time.time()
         if group.rank:
             torch.manual_seed(tr.seed * 1_000_003 + epoch * 1_009 + group.rank)
@@ -364,13 +422,17 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
 class _RunWriter:
     """Rank 0's side of every epoch: validate, keep the best model, write last.pt, the history and the curve."""
 
-    def __init__(self, preset: Preset, core, opt, val_ds, val_idx, dev, out_dir: Path, progress: bool):
-        self.preset, self.core, self.opt, self.dev = preset, core, opt, dev
+    def __init__(self, preset: Preset, core, opt, val_ds, val_idx, dev, out_dir: Path, progress: bool, train_ds):
+        self.preset, self.core, self.opt, self.dev, self.train_ds = preset, core, opt, dev, train_ds
         self.val_ds, self.val_idx, self.out_dir, self.progress = val_ds, val_idx, out_dir, progress
 
     def end_epoch(self, row: dict, history: list, meta: dict, best_score: float, train_time_s: float) -> float:
         net, tr, core, out_dir = self.preset.net, self.preset.train, self.core, self.out_dir
         epoch = row["epoch"] - 1
+        if tr.bn_recalibration_samples:
+            recalibrate_batchnorm(
+                core, net, self.train_ds, tr.bn_recalibration_samples, tr.batch_size, tr.seed + 2, self.dev
+            )
         if self.val_ds is not None:
             pred = run_inference(
                 core, net, self.val_ds, self.dev, tr.batch_size, self.val_idx, "validate", self.progress
