@@ -12,15 +12,15 @@ import sys
 from spare_twin.commands.common import flags
 from spare_twin.errors import SpareTwinError
 
-#: The multi-view presets of the paper's Table 1, and this project's grey network.
-DEFAULT_PRESETS = (
-    "conv3d-depth-mv-count",
-    "lstm-depth-mv-count",
-    "lstm-grey-mv-count",
-    "conv3d-depth-mv-lengths",
-    "conv3d-depth-mv-e2e",
-    "geo-grey-mv-multitask",
-)
+#: Besides the multi-view presets of the paper's Table 1 (read off the presets), this project's grey network.
+EXTRA_DEFAULT_PRESETS = ("geo-grey-mv-multitask",)
+
+
+def default_presets() -> tuple[str, ...]:
+    from spare_twin.nets.presets import PRESETS
+
+    table_1_mv = tuple(name for name, p in PRESETS.items() if p.paper_row and p.net.mode == "mv")
+    return table_1_mv + EXTRA_DEFAULT_PRESETS
 
 
 def add_bench(sub) -> None:
@@ -30,7 +30,10 @@ def add_bench(sub) -> None:
         description=__doc__.split("\n\n", 1)[0],
     )
     p.add_argument("--data", metavar="DATA_DIR", required=True, help="a spare-twin dataset (its train split)")
-    p.add_argument("--presets", default=",".join(DEFAULT_PRESETS), help="comma-separated (default: %(default)s)")
+    p.add_argument(
+        "--presets",
+        help="comma-separated (default: the multi-view presets of the paper's Table 1 and geo-grey-mv-multitask)",
+    )
     p.add_argument(
         "--settings",
         help="comma-separated THREADS/WORKERS[/cl] (cl: channels-last); the first is the baseline "
@@ -66,7 +69,7 @@ def run(args) -> int:
 
     n = torch.get_num_threads()
     settings = parse_settings(args.settings or f"{n}/0,{n}/0/cl,{n}/1,{n}/1/cl")
-    presets = [p for p in args.presets.split(",") if p]
+    presets = [p for p in args.presets.split(",") if p] if args.presets else list(default_presets())
     log = (lambda line: print(line, file=sys.stderr)) if args.json else print
     with flags(data_dir="--data", presets="--presets", steps="--steps"):
         res = bench_training(presets, args.data, settings, args.steps, log=log)

@@ -30,6 +30,12 @@ class InputNorm(nn.Module):
         return (x - self.mean) / self.std
 
 
+def time_bin_frames(n_frames: int, bins: int) -> torch.Tensor:
+    """Indices of `bins` evenly spaced frames of `n_frames` (first and last included): the frames a
+    temporal voxel network puts into its grid's channels."""
+    return torch.linspace(0, n_frames - 1, bins).round().long()
+
+
 def _conv_bn_relu(cin: int, cout: int, stride: int = 1) -> list[nn.Module]:
     return [nn.Conv3d(cin, cout, 3, stride=stride, padding=1, bias=False), nn.BatchNorm3d(cout), nn.ReLU(inplace=True)]
 

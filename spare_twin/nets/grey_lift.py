@@ -16,7 +16,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from spare_twin.nets.blocks import InputNorm, task_heads, voxel_cnn, voxel_fc
+from spare_twin.nets.blocks import InputNorm, task_heads, time_bin_frames, voxel_cnn, voxel_fc
 from spare_twin.nets.geometry import lift
 from spare_twin.nets.presets import NetConfig
 
@@ -76,7 +76,7 @@ class GreyLiftNet(nn.Module):
         B = x.shape[0]
         if self.cfg.mode == "tmp":
             bins = self.cfg.grid.time_bins
-            x = x[:, torch.linspace(0, x.shape[1] - 1, bins).round().long()]  # evenly spaced frames
+            x = x[:, time_bin_frames(x.shape[1], bins)]
             K, T_world_camera = K.expand(B, bins, 3, 3), T_world_camera.expand(B, bins, 4, 4)
         V, H, W = x.shape[1:]
         f = self.views(self.norm(x).reshape(B * V, H, W))

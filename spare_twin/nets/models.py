@@ -12,7 +12,16 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from spare_twin.nets.blocks import N_CLASSES, SLOTS, TYPICAL_LENGTHS_PU, InputNorm, task_heads, voxel_cnn, voxel_fc
+from spare_twin.nets.blocks import (
+    N_CLASSES,
+    SLOTS,
+    TYPICAL_LENGTHS_PU,
+    InputNorm,
+    task_heads,
+    time_bin_frames,
+    voxel_cnn,
+    voxel_fc,
+)
 from spare_twin.nets.geometry import voxelize
 from spare_twin.nets.grey_lift import GreyLiftNet
 from spare_twin.nets.presets import NetConfig
@@ -175,10 +184,8 @@ class GeoVoxelNet(nn.Module):
 
     def grid_of(self, x, K, T_world_camera, print_scale):
         if self.cfg.mode == "tmp":
-            F = x.shape[1]
             bins = self.grid.time_bins
-            pick = torch.linspace(0, F - 1, bins).round().long()  # evenly spaced frames
-            x = x[:, pick]
+            x = x[:, time_bin_frames(x.shape[1], bins)]
             return voxelize(x, K, T_world_camera, print_scale, self.grid, torch.arange(bins), bins)
         return voxelize(x, K, T_world_camera, print_scale, self.grid)
 

@@ -72,6 +72,20 @@ def to_channels_last(model: nn.Module) -> nn.Module:
     return model
 
 
+#: Gradients are clipped to this global norm before every step.
+MAX_GRAD_NORM = 5.0
+
+
+def train_step(model, net: NetConfig, tr: TrainConfig, opt, batch: dict, device) -> torch.Tensor:
+    """One optimiser step on `batch` (forward, loss, backward, clipping, step); returns the loss."""
+    loss = compute_loss(net, tr, forward_train(model, net, batch, device), batch, device)
+    opt.zero_grad(set_to_none=True)
+    loss.backward()
+    nn.utils.clip_grad_norm_(model.parameters(), MAX_GRAD_NORM)
+    opt.step()
+    return loss
+
+
 def forward_train(model, net: NetConfig, batch: dict, device) -> dict:
     inputs = model_inputs(batch, device)
     if net.arch in ("conv3d_per_n", "naive"):  # regressors are routed by the true count in training
@@ -394,12 +408,7 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
                 break
             if batch["x"].shape[0] < 2 and _has_batchnorm(core):
                 continue  # BatchNorm cannot train on a batch of one (the same batch on every rank)
-            out = forward_train(model, net, batch, dev)
-            loss = compute_loss(net, tr, out, batch, dev)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            nn.utils.clip_grad_norm_(model.parameters(), 5.0)
-            opt.step()
+            loss = train_step(model, net, tr, opt, batch, dev)
             losses.append(float(loss.detach()))
             bar.update(1)
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
@@ -439,9 +448,7 @@ class _RunWriter:
             )
             m = summarize(pred)
             row.update({f"val_{k}": v for k, v in m.items() if k != "per_n" and v is not None and k != "instances"})
-            score = _score(m)
-        else:
-            score = -(row["train_loss"] or 0.0)
+        score = _row_score(row)
         history.append(row)
         meta.update(epochs_trained=epoch + 1, train_time_s=train_time_s)
         name = self.preset.name

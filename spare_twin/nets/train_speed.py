@@ -1,6 +1,6 @@
-"""Training speed: samples/s of whole training steps (load the batch, forward, loss, backward, AdamW
-step) per preset, for several settings measured back to back in the same run, as ratios against
-the first (the trainer's defaults).
+"""Training speed: samples/s of whole training steps (load the batch, then `train.train_step`:
+forward, loss, backward, clipping, AdamW step) per preset, for several settings measured back to
+back in the same run, as ratios against the first (the trainer's defaults).
 
 A setting is what `TrainConfig` can change without changing the result of an epoch: torch's thread
 count, DataLoader worker processes (loading overlaps the step), and the channels-last memory layout
@@ -21,7 +21,7 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.nets.data import open_split
 from spare_twin.nets.models import build_model
 from spare_twin.nets.presets import get_preset
-from spare_twin.nets.train import compute_loss, forward_train, measure_normalization, to_channels_last
+from spare_twin.nets.train import measure_normalization, to_channels_last, train_step
 
 
 @dataclass(frozen=True)
@@ -83,10 +83,7 @@ def _time_steps(preset_name: str, data_dir, setting: SpeedSetting, steps: int, w
     for i, batch in enumerate(loader):
         if i == warmup:
             t0 = time.perf_counter()
-        loss = compute_loss(net, tr, forward_train(model, net, batch, "cpu"), batch, "cpu")
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        opt.step()
+        train_step(model, net, tr, opt, batch, "cpu")
     return steps * tr.batch_size / (time.perf_counter() - t0)
 
 
