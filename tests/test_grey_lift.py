@@ -115,6 +115,8 @@ def test_grey_lift_reads_grey_only():
         resolve("geo-grey-mv-multitask", {"net": {"input": "depth"}})
     with pytest.raises(SpareTwinError, match="grey_jitter"):
         resolve("geo-grey-mv-multitask", {"train": {"grey_jitter": "yes"}})
+    with pytest.raises(SpareTwinError, match="lift_extremes"):  # one camera's frames: no views to span
+        resolve("geo-grey-tmp-multitask", {"net": {"lift_extremes": True}})
 
 
 def test_the_views_extremes_bound_their_mean():

@@ -97,6 +97,8 @@ class NetConfig:
             raise SpareTwinError("net.input: grey_lift lifts grey views; for depth use geo_voxel")
         if self.arch == "grey_lift" and (self.mode not in ("mv", "tmp") or self.lift_features < 2):
             raise SpareTwinError("net.lift_features: grey_lift needs at least 2 (mode mv or tmp)")
+        if self.lift_extremes and not (self.arch == "grey_lift" and self.mode == "mv"):
+            raise SpareTwinError("net.lift_extremes: only grey_lift with mode mv has views to take extremes over")
         if self.arch in ("conv3d_per_n",) and self.task != "lengths":
             raise SpareTwinError("net.task: conv3d_per_n regresses lengths with n known (task lengths)")
         if self.arch == "naive" and self.task != "e2e":
