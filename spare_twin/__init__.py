@@ -9,6 +9,6 @@ so importing this package and `spare-twin --help` stay instant.
 
 from spare_twin.errors import SpareTwinError
 
-__version__ = "0.4.1"
+__version__ = "0.4.2"
 
 __all__ = ["SpareTwinError", "__version__"]

@@ -227,13 +227,15 @@ def _inv(T: np.ndarray) -> np.ndarray:
     return out
 
 
-def _normal_equations(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """J^T J (6x6) and J^T r of point rows, summed in a fixed order (numpy's pairwise sum per entry)."""
-    H = np.empty((6, 6))
-    g = np.empty(6)
-    for i in range(6):
+def normal_equations(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """J^T J (k x k) and J^T r of point rows J (N, k), summed in a fixed order (numpy's pairwise sum per
+    entry): a BLAS product over the points may split them across threads and add the parts in any order."""
+    k = J.shape[1]
+    H = np.empty((k, k))
+    g = np.empty(k)
+    for i in range(k):
         g[i] = np.sum(J[:, i] * r)
-        for j in range(i, 6):
+        for j in range(i, k):
             H[i, j] = H[j, i] = np.sum(J[:, i] * J[:, j])
     return H, g
 
@@ -545,7 +547,7 @@ class _Registrar:
                 p, j = P[m], idx[m]
                 nq = tgt.normals[j]
                 r = np.sum((p - tgt.points[j]) * nq, axis=1)
-                H, g = _normal_equations(np.concatenate([np.cross(p, nq), nq], axis=1), r)
+                H, g = normal_equations(np.concatenate([np.cross(p, nq), nq], axis=1), r)
                 xi = _solve6(H, g)
                 T = _step(xi) @ T
                 if np.abs(xi).max() < stop:

@@ -12,7 +12,8 @@ the training samples (`spare_twin.nets.profile_train`), whatever made the record
   writes into the user's recording.
 
 `measured_chain` adds the chain measured layer by layer (`observe.layers`) and, where a sweep
-registered here gives none as a whole, looks at parts of the sweep alone (see its doc).
+registered here gives none as a whole, brings its views into register on the object
+(`observe.on_object`) and looks at parts of the sweep alone (see its doc).
 
 Nothing reads the recording's object configuration or ground truth.
 """
@@ -29,6 +30,7 @@ from spare_twin.capture.frames import load_frames
 from spare_twin.capture.registration import RegistrationConfig, register_frames
 from spare_twin.errors import SpareTwinError
 from spare_twin.observe.layers import LayerMeasurement, measure_profile
+from spare_twin.observe.on_object import register_on_object
 from spare_twin.observe.points import ObjectPoints, PointsConfig, PosedView, object_candidates
 from spare_twin.observe.profile import ChainProfile, ProfileConfig, chain_profile
 from spare_twin.recording import Recording
@@ -60,6 +62,8 @@ class ChainObservation:
 
 #: `recording_views`' source for a sweep whose poses it registered itself.
 REGISTERED_SWEEP = "sweep, registered"
+#: ... and `measured_chain`'s, once those views were brought into register on the object.
+ON_OBJECT_SWEEP = "sweep, registered, brought into register on the object"
 
 
 def recording_views(
@@ -88,23 +92,19 @@ def recording_views(
     start = int(part[0] * len(picks))
     picks = picks[start : max(int(np.ceil(part[1] * len(picks))), start + 1)]
     poses = rec.camera_poses(cam.name)
-    seconds = 0.0
-    source = "sweep"
     if poses is None:
         if len(picks) < 2:
             raise SpareTwinError(f"{rec.root}: one frame and no camera pose; nothing to register")
         t0 = time.perf_counter()
         frames = load_frames(rec, cam.name, picks)
         poses_picked = register_frames(frames, RegistrationConfig(), None, progress).poses
-        seconds = time.perf_counter() - t0
-        source = REGISTERED_SWEEP
         views = [
             PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), cam.K, P, fr.color)
             for fr, P in zip(frames, poses_picked)
         ]
-        return views, source, seconds
+        return views, REGISTERED_SWEEP, time.perf_counter() - t0
     views = [PosedView(rec.depth_m(cam.name, f), cam.K, poses[f], rec.color(cam.name, f)) for f in picks]
-    return views, source, seconds
+    return views, "sweep", 0.0
 
 
 def find_chain(
@@ -139,6 +139,10 @@ def observe_chain(
 ) -> ChainObservation:
     """The chain's observation in a recording (see the module doc); `part`: see `recording_views`."""
     views, source, registration_s = recording_views(rec, frame, camera, progress=progress, part=part)
+    return _observe(views, source, registration_s, print_scale, points_cfg, profile_cfg)
+
+
+def _observe(views, source, registration_s, print_scale, points_cfg=PointsConfig(), profile_cfg=ProfileConfig()):
     t0 = time.perf_counter()
     obj, profile = find_chain(views, print_scale, points_cfg, profile_cfg)
     timings = {"registration": round(registration_s, 3), "observation": round(time.perf_counter() - t0, 3)}
@@ -158,37 +162,61 @@ def measured_chain(
     rec: Recording, print_scale: float, frame: int | None = None, camera: str | None = None, progress: bool = False
 ) -> tuple[ChainObservation, LayerMeasurement]:
     """`observe_chain` and its layer measurement (`observe.layers.measure_profile`); the observation's
-    `timings_s` gain "measurement", all summed over the parts looked at.
+    `timings_s` gain "measurement", all summed over the tries.
 
-    A sweep registered here that gives no chain as a whole (the fused object too wide, not standing on
-    a 12 mm column, or blurred centimetres off any chain) is looked at again in parts: its first half,
-    its second half and its middle half, each registered on its own, and the part whose chain fits its
-    points best (lowest RMS) is kept; a part within `CLEAN_PART_RMS_M` is kept at once. Registration
-    errors come in runs: a sweep's views slide apart along the table where the object shows little (a
-    Kinect at a metre and more), and the half without that run fuses into one chain; so does the half
-    of a sweep before (or after) the object was bumped. On the development captures that got no answer this way
-    (seeds 12013, 14013, 14018, 15013) every one was counted right from one of its parts. A recording
-    with its own poses, one frame or a rig is not split: its views are placed as given."""
-    seen, measured = _observe_and_measure(rec, print_scale, frame, camera, progress, (0.0, 1.0))
-    if measured.n_links is not None or seen.source != REGISTERED_SWEEP or seen.views < MIN_FRAMES_TO_SPLIT:
-        return seen, measured
-    best, seconds = None, dict(seen.timings_s)
+    A sweep registered here is measured with its views brought into register on the object
+    (`observe.on_object`): views that slipped by a degree or a few millimetres along the table blur
+    the chain's 6.4 mm layers (a 2-link RealSense sweep fused 14.9 mm RMS off any chain as registered,
+    0.3 mm after). Where the views as registered give no chain at all (the fused object too wide, not
+    standing on a 12 mm column, or blurred centimetres off any chain), the registration is off by more
+    than the object can pull back somewhere, and the sweep's parts are looked at too: its first half,
+    its second half and its middle half, each registered on its own and brought into register on the
+    object. Registration errors come in runs: a sweep's views slide apart along the table where the
+    object shows little (a Kinect at a metre and more), and the half without that run fuses into one
+    chain; so does the half of a sweep before (or after) the object was bumped. The try whose chain
+    fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends the search. A
+    recording with its own poses, one frame or a rig is looked at once: its views are placed as given."""
+    views, source, registration_s = recording_views(rec, frame, camera, progress=progress)
+    as_registered = _measure(_observe(views, source, registration_s, print_scale), print_scale)
+    if source != REGISTERED_SWEEP:
+        return as_registered
+    seen, measured = _on_object(views, registration_s, print_scale)
+    seconds = _add(seen.timings_s, as_registered[0].timings_s, but="registration")
+    if as_registered[1].n_links is not None or len(views) < MIN_FRAMES_TO_SPLIT:
+        best = (seen, measured) if measured.n_links is not None else as_registered
+        return dataclasses.replace(best[0], timings_s=seconds), best[1]
+    why = "the whole did not fuse into one chain"
+    best = None
+    if measured.n_links is not None:
+        best = (dataclasses.replace(seen, source=f"{seen.source}: {why}"), measured)
     for part in SWEEP_PARTS:
-        piece, m = _observe_and_measure(rec, print_scale, frame, camera, progress, part)
-        seconds = {k: round(seconds[k] + piece.timings_s[k], 3) for k in seconds}
+        if best is not None and best[1].rms_m <= CLEAN_PART_RMS_M:
+            break
+        part_views, _, part_registration_s = recording_views(rec, frame, camera, progress=progress, part=part)
+        piece, m = _on_object(part_views, part_registration_s, print_scale)
+        seconds = _add(seconds, piece.timings_s)
         if m.n_links is not None and (best is None or m.rms_m < best[1].rms_m):
-            share = (
-                f"frames {100 * part[0]:.0f}-{100 * part[1]:.0f} % of the sweep: the whole did not fuse into one chain"
-            )
-            best = (dataclasses.replace(piece, source=f"{piece.source}, {share}"), m)
-            if m.rms_m <= CLEAN_PART_RMS_M:
-                break
-    seen, measured = best or (seen, measured)
+            share = f"frames {100 * part[0]:.0f}-{100 * part[1]:.0f} % of the sweep"
+            best = (dataclasses.replace(piece, source=f"{piece.source}, {share}: {why}"), m)
+    seen, measured = best or as_registered
     return dataclasses.replace(seen, timings_s=seconds), measured
 
 
-def _observe_and_measure(rec, print_scale, frame, camera, progress, part) -> tuple[ChainObservation, LayerMeasurement]:
-    seen = observe_chain(rec, print_scale, frame, camera, progress=progress, part=part)
+def _on_object(views: list[PosedView], registration_s: float, print_scale: float):
+    """(observation, measurement) of registered views brought into register on the object
+    (`observe.on_object`); the time that takes is registration, after `registration_s` spent before."""
+    t0 = time.perf_counter()
+    on_object = register_on_object(views)
+    registration_s += time.perf_counter() - t0
+    return _measure(_observe(on_object, ON_OBJECT_SWEEP, registration_s, print_scale), print_scale)
+
+
+def _add(a: dict, b: dict, but: str | None = None) -> dict:
+    """Per-step seconds of two tries summed (`but`: that step's from `a` alone)."""
+    return {k: round(a[k] + (0.0 if k == but else b[k]), 3) for k in a}
+
+
+def _measure(seen: ChainObservation, print_scale: float) -> tuple[ChainObservation, LayerMeasurement]:
     t0 = time.perf_counter()
     if seen.reason is not None:
         measured = LayerMeasurement(None, None, None, ())

@@ -143,6 +143,17 @@ def _stride(v: PosedView, cfg: PointsConfig, fine: bool) -> int:
     return stride
 
 
+def read_view(v: PosedView, cfg: PointsConfig, fine: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(depth, K, world points, stride) of a view read at its stride (`_stride`): the strided depth
+    (0 = no reading or beyond `max_depth_m`), its intrinsics, its readings in the world (row-major)."""
+    stride = _stride(v, cfg, fine)
+    depth = v.depth_m[::stride, ::stride]
+    depth = np.where(depth < cfg.max_depth_m, depth, 0.0)
+    K = np.asarray(v.K, np.float64).copy()
+    K[:2] /= stride  # pixel i of the strided grid is pixel stride * i: centres stay on integers
+    return depth, K, rigid(np.asarray(v.T_world_camera, np.float64), backproject(depth, K)), stride
+
+
 def merged_cloud(
     views: list[PosedView], cfg: PointsConfig, keep=None, surfaces: bool = True
 ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None, np.ndarray | None]:
@@ -153,12 +164,7 @@ def merged_cloud(
     the fine stride (`_stride`), since only the region kept costs memory."""
     pts, cols, dirs, nrms = [], [], [], []
     for v in views:
-        stride = _stride(v, cfg, fine=keep is not None)
-        depth = v.depth_m[::stride, ::stride]
-        depth = np.where(depth < cfg.max_depth_m, depth, 0.0)
-        K = np.asarray(v.K, np.float64).copy()
-        K[:2] /= stride  # pixel i of the strided grid is pixel stride * i: centres stay on integers
-        world = rigid(np.asarray(v.T_world_camera, np.float64), backproject(depth, K))
+        depth, K, world, stride = read_view(v, cfg, fine=keep is not None)
         mask = np.ones(len(world), bool) if keep is None else keep(world)
         world = world[mask]
         pts.append(world)
@@ -244,6 +250,16 @@ def table_frame(plane: np.ndarray, origin: np.ndarray) -> np.ndarray:
     return T
 
 
+def views_table_frame(views: list[PosedView], cfg: PointsConfig) -> tuple[np.ndarray | None, int]:
+    """(T_world_table, points merged): the table frame of the views (`table_plane` of their coarse
+    merged cloud, the origin where they look); None when they hold fewer than 100 points."""
+    points = merged_cloud(views, cfg, surfaces=False)[0]
+    if len(points) < 100:
+        return None, len(points)
+    plane = table_plane(points, np.stack([v.T_world_camera[:3, 3] for v in views]), cfg)
+    return table_frame(plane, view_target(views, plane)), len(points)
+
+
 def _empty(T: np.ndarray, scene: int, reason: str) -> ObjectPoints:
     return ObjectPoints(np.zeros((0, 3)), None, T, scene, reason)
 
@@ -252,11 +268,9 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
     """Everything standing on the table in the views' world (see the module doc), each in the table
     frame, best first (more points, nearer where the cameras look); one entry with a `reason` when
     nothing stands there. Which of them is a chain is for `observe.chain` to say."""
-    points = merged_cloud(views, cfg, surfaces=False)[0]
-    if len(points) < 100:
-        return [_empty(np.eye(4), len(points), f"the depth views hold only {len(points)} points")]
-    plane = table_plane(points, np.stack([v.T_world_camera[:3, 3] for v in views]), cfg)
-    T_world_table = table_frame(plane, view_target(views, plane))
+    T_world_table, n_points = views_table_frame(views, cfg)
+    if T_world_table is None:
+        return [_empty(np.eye(4), n_points, f"the depth views hold only {n_points} points")]
     T_table_world = np.linalg.inv(T_world_table)
 
     def near_target(world: np.ndarray) -> np.ndarray:  # what the object can be: above the table, near the target
