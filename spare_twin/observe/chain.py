@@ -43,8 +43,9 @@ class ChainObservation:
     object: ObjectPoints
     profile: ChainProfile
     source: str
-    """"cameras" (every posed camera at one frame), "sweep" (one camera's posed frames) or
-    "sweep, registered" (one camera's frames, poses estimated here)."""
+    """"cameras" (every posed camera at one frame), "sweep" (one camera's posed frames),
+    "sweep, registered" (one camera's frames, poses estimated here) or `ON_OBJECT_SWEEP` (those views
+    then brought into register on the object, `measured_chain`), the last two maybe naming a part."""
     views: int
     timings_s: dict = field(default_factory=dict)
     """"registration" and "observation" seconds."""
