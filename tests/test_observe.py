@@ -172,10 +172,6 @@ def test_a_sweep_that_does_not_fuse_as_a_whole_is_measured_from_a_part(printed_o
     assert seen.source.startswith("sweep, registered, brought into register on the object, frames ") and seen.views < 12
 
 
-def _planar(theta_rad: float, dx: float, dy: float) -> np.ndarray:
-    return _yaw(theta_rad, (dx, dy))
-
-
 def _spread_deg_mm(views: list[PosedView], truth: list[np.ndarray], at: np.ndarray) -> tuple[float, float]:
     """How far the views are out of register with each other: the largest turn between two views'
     errors (deg) and the largest distance between where two views put the point `at` (mm)."""
@@ -198,7 +194,7 @@ def test_views_that_slipped_are_brought_into_register_on_the_object(handheld_rec
     depths = [rec.depth_m(cam.name, f) for f in range(rec.n_frames)]
     at = np.zeros(3)  # the object stands at the sim world's origin
     rng = np.random.default_rng(3)
-    slips = [_planar(math.radians(rng.uniform(-1.5, 1.5)), *rng.uniform(-0.004, 0.004, 2)) for _ in truth]
+    slips = [_yaw(math.radians(rng.uniform(-1.5, 1.5)), rng.uniform(-0.004, 0.004, 2)) for _ in truth]
     slipped = [PosedView(d, cam.K, S @ T) for d, S, T in zip(depths, slips, truth)]
     before = _spread_deg_mm(slipped, truth, at)
     after = _spread_deg_mm(register_on_object(slipped), truth, at)
@@ -226,7 +222,7 @@ def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(han
     cam = rec.cameras[0]
     truth = [rec.T_world_camera(cam.name, f) for f in range(rec.n_frames)]
     rng = np.random.default_rng(5)
-    slips = [_planar(math.radians(rng.uniform(-2.0, 2.0)), *rng.uniform(-0.006, 0.006, 2)) for _ in truth]
+    slips = [_yaw(math.radians(rng.uniform(-2.0, 2.0)), rng.uniform(-0.006, 0.006, 2)) for _ in truth]
     poses = np.stack([S @ T for S, T in zip(slips, truth)])
     monkeypatch.setattr(rec, "camera_poses", lambda name: None)  # as if captured without poses
     monkeypatch.setattr(chain, "register_frames", lambda frames, *a: types.SimpleNamespace(poses=poses[: len(frames)]))
