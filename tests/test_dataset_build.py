@@ -163,3 +163,20 @@ def test_force_replaces_a_foreign_folder_only_once_the_new_dataset_is_complete(t
     generate_dataset(mine, 1, seed=2, cfg=CFG, progress=False, force=True)
     assert json.loads((mine / "dataset.json").read_text())["seed"] == 2
     assert generate_dataset(mine, 2, seed=2, cfg=CFG, progress=False)["generated"] == 1
+
+
+def test_a_run_killed_before_its_settings_were_written_resumes(tmp_path):
+    """Killed after taking its lock but before writing dataset.json, a run leaves the folder holding its
+    lock alone (the sequences folder comes after the settings); the rerun resumes there and gives the
+    same files as a run never stopped, while a folder holding anything else is still refused."""
+    ref, cut, foreign = tmp_path / "ref", tmp_path / "cut", tmp_path / "foreign"
+    generate_dataset(ref, 2, seed=5, workers=1, cfg=CFG, progress=False)
+    cut.mkdir()
+    (cut / ".lock").write_text("999999999")  # a writer that is gone
+    generate_dataset(cut, 2, seed=5, workers=1, cfg=CFG, progress=False)
+    assert _hashes(cut) == _hashes(ref)
+    foreign.mkdir()
+    (foreign / ".lock").write_text("999999999")
+    (foreign / "sequences").mkdir()
+    with pytest.raises(SpareTwinError, match="no dataset.json"):
+        generate_dataset(foreign, 2, seed=5, workers=1, cfg=CFG, progress=False)

@@ -183,7 +183,8 @@ def generate_dataset(
     try:  # refuse before writing anything
         if root.exists() and not root.is_dir():
             raise OutputRefused(root, "exists and is not a folder", replaceable=True)
-        if root.is_dir() and any(root.iterdir()) and not (root / "dataset.json").exists():
+        # a run killed before its dataset.json leaves at most its own lock behind: that folder resumes
+        if root.is_dir() and any(p.name != ".lock" for p in root.iterdir()) and not (root / "dataset.json").exists():
             raise OutputRefused(root, "not empty and not a dataset folder (no dataset.json)", replaceable=True)
         _check_settings(root, seed, cfg, create=False)
     except SpareTwinError as exc:
@@ -200,7 +201,7 @@ def generate_dataset(
     ray = backend == "ray" and bool(_missing(seq_dir, instances))
     with RaySession(ray_address, workers) if ray else contextlib.nullcontext() as session:
         try:
-            seq_dir.mkdir(parents=True, exist_ok=True)
+            root.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise SpareTwinError(f"{root}: cannot create the dataset folder ({exc.strerror or exc})") from None
         todo, gen_s, manifest = _generate(root, instances, seed, workers, cfg, progress, backend, shards)
@@ -232,7 +233,8 @@ def _generate(root: Path, instances, seed, workers, cfg: GenConfig, progress, ba
     seq_dir = root / "sequences"
     images_per_seq = cfg.rig.n_cameras * cfg.frames
     with _Lock(root):
-        _check_settings(root, seed, cfg)
+        _check_settings(root, seed, cfg)  # dataset.json first: whatever else is here, the folder is a dataset
+        seq_dir.mkdir(exist_ok=True)
         for stale in seq_dir.glob(".seq-*.tmp*"):  # left by a killed run
             stale.unlink(missing_ok=True)
         todo = _missing(seq_dir, instances)
