@@ -180,3 +180,9 @@ def test_a_run_killed_before_its_settings_were_written_resumes(tmp_path):
     (foreign / "sequences").mkdir()
     with pytest.raises(SpareTwinError, match="no dataset.json"):
         generate_dataset(foreign, 2, seed=5, workers=1, cfg=CFG, progress=False)
+    users = tmp_path / "users"
+    users.mkdir()
+    (users / ".lock").write_text("my notes")  # not a pid: not ours
+    with pytest.raises(SpareTwinError, match="no dataset.json"):
+        generate_dataset(users, 2, seed=5, workers=1, cfg=CFG, progress=False)
+    assert (users / ".lock").read_text() == "my notes"

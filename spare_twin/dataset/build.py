@@ -68,6 +68,17 @@ class _Lock:
         self.path.unlink(missing_ok=True)
 
 
+def _ours_or_empty(root: Path) -> bool:
+    """The folder is a dataset, empty, or holds only the lock of a run killed before it wrote its
+    dataset.json (a file named .lock holding a pid): those resume; anything else is the user's."""
+    if (root / "dataset.json").exists():
+        return True
+    entries = list(root.iterdir())
+    if not entries:
+        return True
+    return [p.name for p in entries] == [".lock"] and entries[0].is_file() and entries[0].read_text().strip().isdigit()
+
+
 def _check_settings(root: Path, seed: int, cfg: GenConfig, create: bool = True) -> None:
     """The folder's dataset.json must hold these settings; an absent one is written (with `create`)."""
     path = root / "dataset.json"
@@ -183,8 +194,7 @@ def generate_dataset(
     try:  # refuse before writing anything
         if root.exists() and not root.is_dir():
             raise OutputRefused(root, "exists and is not a folder", replaceable=True)
-        # a run killed before its dataset.json leaves at most its own lock behind: that folder resumes
-        if root.is_dir() and any(p.name != ".lock" for p in root.iterdir()) and not (root / "dataset.json").exists():
+        if root.is_dir() and not _ours_or_empty(root):
             raise OutputRefused(root, "not empty and not a dataset folder (no dataset.json)", replaceable=True)
         _check_settings(root, seed, cfg, create=False)
     except SpareTwinError as exc:
