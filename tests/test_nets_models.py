@@ -1,5 +1,8 @@
 """Every preset builds and gives the outputs its task promises; the voxel front end is geometric."""
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -77,3 +80,18 @@ def test_config_overrides_are_checked():
         resolve("geo-depth-mv-count", {"net": {"bogus": 1}})
     with pytest.raises(SpareTwinError):
         resolve("no-such-preset", None)
+
+
+@pytest.mark.parametrize(
+    "path",
+    sorted((Path(__file__).parents[1] / "models" / "configs").rglob("*.json")),
+    ids=lambda p: p.relative_to(p.parents[1]).as_posix(),
+)
+def test_every_shipped_training_configuration_resolves(path):
+    """The recipes the model cards point at stay valid as the presets change."""
+    config = json.loads(path.read_text())
+    preset = resolve(None, config, str(path))
+    init_from = preset.train.init_from
+    # a fine-tuning stage starts from a shipped model or from the run of the stage before it
+    root = Path(__file__).parents[1]
+    assert init_from is None or (root / init_from).is_file() or init_from.startswith("runs/"), init_from
