@@ -10,6 +10,8 @@ import torch
 from spare_twin.nets.models import build_model, decode, slots_to_count
 from spare_twin.nets.presets import PRESETS, resolve
 
+ROOT = Path(__file__).parents[1]
+
 
 def _batch(net, B=2):
     V = net.frames
@@ -84,7 +86,7 @@ def test_config_overrides_are_checked():
 
 @pytest.mark.parametrize(
     "path",
-    sorted((Path(__file__).parents[1] / "models" / "configs").rglob("*.json")),
+    sorted((ROOT / "models" / "configs").rglob("*.json")),
     ids=lambda p: p.relative_to(p.parents[1]).as_posix(),
 )
 def test_every_shipped_training_configuration_resolves(path):
@@ -93,5 +95,4 @@ def test_every_shipped_training_configuration_resolves(path):
     preset = resolve(None, config, str(path))
     init_from = preset.train.init_from
     # a fine-tuning stage starts from a shipped model or from the run of the stage before it
-    root = Path(__file__).parents[1]
-    assert init_from is None or (root / init_from).is_file() or init_from.startswith("runs/"), init_from
+    assert init_from is None or (ROOT / init_from).is_file() or init_from.startswith("runs/"), init_from

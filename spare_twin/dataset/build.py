@@ -47,6 +47,14 @@ PRESETS = {"paper": Preset(instances=324), "small": Preset(instances=36), "tiny"
 
 
 # -- driver side -----------------------------------------------------------------------------
+def _lock_pid(path: Path) -> int | None:
+    """The pid a `_Lock` file holds; None where the path is no such file (absent, or the user's)."""
+    if not path.is_file():
+        return None
+    text = path.read_text().strip()
+    return int(text) if text.isdigit() else None
+
+
 class _Lock:
     """DATA_DIR/.lock holding the writer's pid; a lock whose process is gone (killed) is taken over."""
 
@@ -55,10 +63,7 @@ class _Lock:
 
     def __enter__(self):
         if self.path.exists():
-            try:
-                pid = int(self.path.read_text().strip() or 0)
-            except ValueError:
-                pid = 0
+            pid = _lock_pid(self.path)
             if pid and pid != os.getpid() and process_alive(pid):
                 raise SpareTwinError(f"{self.path.parent}: another spare-twin dataset (pid {pid}) is writing it")
         self.path.write_text(str(os.getpid()))
@@ -76,7 +81,7 @@ def _ours_or_empty(root: Path) -> bool:
     entries = list(root.iterdir())
     if not entries:
         return True
-    return [p.name for p in entries] == [".lock"] and entries[0].is_file() and entries[0].read_text().strip().isdigit()
+    return [p.name for p in entries] == [".lock"] and _lock_pid(entries[0]) is not None
 
 
 def _check_settings(root: Path, seed: int, cfg: GenConfig, create: bool = True) -> None:

@@ -67,9 +67,7 @@ def _object_points(v: PosedView, T_table_world: np.ndarray, points_cfg: PointsCo
     depth, K, world, _ = read_view(v, points_cfg, fine=True)
     local = rigid(T_table_world, world)
     near = where_objects_stand(local, points_cfg)
-    pick = np.zeros(depth.shape, bool)
-    pick[depth > 0] = near
-    normals = pixel_normals(depth, K, pick) @ (T_table_world[:3, :3] @ np.asarray(v.T_world_camera)[:3, :3]).T
+    normals = pixel_normals(depth, K, near) @ (T_table_world[:3, :3] @ np.asarray(v.T_world_camera)[:3, :3]).T
     surface = np.abs(normals).sum(axis=1) > 0  # a surface around it
     idx = np.flatnonzero(near)[surface]
     normals = normals[surface]

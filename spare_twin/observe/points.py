@@ -131,10 +131,13 @@ def depth_normals(depth_m: np.ndarray, K: np.ndarray, max_step_m: float = 0.01, 
     return normals
 
 
-def pixel_normals(depth_m: np.ndarray, K: np.ndarray, pick: np.ndarray) -> np.ndarray:
-    """`depth_normals(depth_m, K)[pick]` ((N, 3), row-major), computed only over the box round the
-    picked pixels (and the one pixel around it the differences need): the object fills a small part
-    of a hand-held view, and the whole image's normals cost 50 ms a 640 x 480 view."""
+def pixel_normals(depth_m: np.ndarray, K: np.ndarray, keep: np.ndarray) -> np.ndarray:
+    """`depth_normals(depth_m, K)[depth_m > 0][keep]` ((N, 3); `keep` masks the readings in row-major
+    order), computed only over the box round the kept pixels (and the one pixel around it the
+    differences need): the object fills a small part of a hand-held view, and the whole image's
+    normals cost 50 ms a 640 x 480 view."""
+    pick = np.zeros(depth_m.shape, bool)
+    pick[depth_m > 0] = keep
     rows, cols = np.flatnonzero(pick.any(axis=1)), np.flatnonzero(pick.any(axis=0))
     if not len(rows):
         return np.zeros((0, 3))
@@ -182,9 +185,7 @@ def merged_cloud(
         world = world[mask]
         pts.append(world)
         if surfaces:
-            pick = np.zeros(depth.shape, bool)
-            pick[depth > 0] = mask
-            normals = pixel_normals(depth, K, pick)
+            normals = pixel_normals(depth, K, mask)
             nrms.append(normals @ np.asarray(v.T_world_camera, np.float64)[:3, :3].T)
             to_camera = np.asarray(v.T_world_camera, np.float64)[:3, 3] - world
             dirs.append(to_camera / np.maximum(np.linalg.norm(to_camera, axis=1, keepdims=True), 1e-9))
