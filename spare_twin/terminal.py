@@ -1,5 +1,7 @@
-"""The terminal side of a command: signals that must unwind like Ctrl-C, and a stdout that holds exactly
-one JSON object under `--json` whatever the libraries (C and C++ included) print while the work runs."""
+"""The terminal side of a command: signals that must unwind like Ctrl-C, a stdout that holds exactly
+one JSON object under `--json` whatever the libraries (C and C++ included) print while the work runs,
+text streams that never fail on encoding, and the libraries' own chatter on stderr held back so that a
+failing command says one line."""
 
 from __future__ import annotations
 
@@ -7,10 +9,14 @@ import contextlib
 import ctypes
 import io
 import json
+import math
 import os
+import select
 import signal
+import stat
 import sys
 import threading
+import warnings
 from collections.abc import Iterator
 
 
@@ -51,10 +57,42 @@ class JsonStdout:
         self.emit_text(json.dumps(obj))
 
     def emit_text(self, text: str) -> None:
-        """An object already serialised (one line of JSON)."""
+        """An object already serialised (one line of JSON); NaN and infinities become null (`strict_json`)."""
         if self.emitted:
             raise RuntimeError("a --json command prints exactly one JSON object")
-        self.text = text
+        self.text = strict_json(text)
+
+
+def _finite_or_none(value):
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite_or_none(v) for v in value]
+    return value
+
+
+def strict_json(text: str) -> str:
+    """`text` (one JSON value, as Python's `json.dumps` writes it) as strict JSON: `json.dumps` writes
+    NaN and infinities as the bare words `NaN` and `Infinity`, which JSON readers outside Python refuse.
+    Those become null (no number is known there); text without them is returned as it came."""
+    non_finite = []
+
+    def constant(word: str) -> float:  # NaN, Infinity, -Infinity
+        non_finite.append(word)
+        return float("nan")
+
+    def number(digits: str) -> float:  # 1e999 reads as inf
+        value = float(digits)
+        if not math.isfinite(value):
+            non_finite.append(digits)
+        return value
+
+    obj = json.loads(text, parse_constant=constant, parse_float=number)
+    if not non_finite:
+        return text.strip()
+    return json.dumps(_finite_or_none(obj), allow_nan=False)
 
 
 class _PrintedJson(io.TextIOBase):
@@ -83,7 +121,7 @@ class _PrintedJson(io.TextIOBase):
             if is_object:
                 if self.kept is not None:  # an earlier object was not the command's last word after all
                     self.err.write(self.kept + "\n")
-                self.kept = line.strip()
+                self.kept = strict_json(line)
                 return
         self.err.write(line + "\n")
 
@@ -139,3 +177,164 @@ def single_json_stdout(enabled: bool = True, catch_printed: bool = False) -> Ite
             os.close(saved)
     if out.emitted:
         print(out.text, flush=True)
+
+
+# -- the environment a command starts in -------------------------------------------------------------
+
+
+def never_fail_on_encoding() -> None:
+    """Printing never raises UnicodeEncodeError: a character the terminal's encoding lacks (an `--out`
+    named `objét` under PYTHONIOENCODING=ascii) is written as a backslash escape, after the work is done
+    as well as before it."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(AttributeError, ValueError, io.UnsupportedOperation):
+            stream.reconfigure(errors="backslashreplace")
+
+
+def _pipe_without_reader(fd: int) -> bool:
+    """Whether `fd` is a pipe whose reading end is closed (`spare-twin ... | true` after `true` ended):
+    Linux reports POLLERR on its writing end."""
+    try:
+        if not stat.S_ISFIFO(os.fstat(fd).st_mode):
+            return False
+        poller = select.poll()
+        poller.register(fd, select.POLLOUT)
+        return any(events & select.POLLERR for _, events in poller.poll(0))
+    except (OSError, AttributeError, ValueError):  # no poll on this platform: find out when printing
+        return False
+
+
+def environment_problem() -> str | None:
+    """What keeps any command from running here, said before numpy or torch are imported (they fail on
+    these with a bare OS error or a fatal oneMKL message): a current folder that was deleted, a stdout
+    that is closed (`>&-`) or a pipe nobody reads. A closed stdout must be refused before any file is
+    opened: the first one opened would become file descriptor 1 and receive what C libraries print."""
+    try:
+        os.getcwd()
+    except OSError as exc:
+        return f"the current folder no longer exists ({exc.strerror}): it was deleted or moved; cd to one that exists"
+    if sys.stdout is None:
+        return "stdout is closed: nothing the command says could be printed; run it with stdout open (> /dev/null)"
+    if sys.stdout is sys.__stdout__:
+        try:
+            fd = sys.stdout.fileno()
+            os.fstat(fd)
+        except (OSError, AttributeError, ValueError, io.UnsupportedOperation):
+            return "stdout is closed: nothing the command says could be printed; run it with stdout open (> /dev/null)"
+        if _pipe_without_reader(fd):
+            return "stdout is a pipe that nobody reads (its reader has ended): nothing the command says would be seen"
+    return None
+
+
+def stdout_gone() -> None:
+    """After a broken pipe on stdout: point file descriptor 1 at /dev/null, so that the interpreter's
+    last flush at exit does not add an "Exception ignored ... BrokenPipeError" to the one-line error."""
+    with contextlib.suppress(OSError, AttributeError, ValueError, io.UnsupportedOperation):
+        if sys.stdout is sys.__stdout__:
+            devnull = os.open(os.devnull, os.O_WRONLY)
+            os.dup2(devnull, sys.stdout.fileno())
+            os.close(devnull)
+
+
+# -- libraries' chatter on stderr ------------------------------------------------------------------------
+
+#: While `library_chatter_held` runs: Python's own stderr (the process's file descriptor 2, now a pipe),
+#: for the children forked meanwhile (their tracebacks and prints are chatter too).
+_forked_stderr = None
+
+
+def _child_stderr() -> None:
+    if _forked_stderr is not None:
+        sys.stderr = _forked_stderr
+
+
+if hasattr(os, "register_at_fork"):
+    os.register_at_fork(after_in_child=_child_stderr)
+
+
+class HeldChatter:
+    """What C and C++ libraries (libpng, OpenCV, Open3D, pybullet), Python warnings and worker processes
+    wrote on stderr while a command ran. `keep` says whether it is shown when the command ends."""
+
+    #: At most this much is kept: the last bytes, a long run's chatter is not worth the memory.
+    LIMIT_BYTES = 1 << 20
+
+    def __init__(self) -> None:
+        self.keep = True
+        self.chunks: list[bytes] = []
+        self.size_bytes = 0
+
+    def take(self, chunk: bytes) -> None:
+        self.chunks.append(chunk)
+        self.size_bytes += len(chunk)
+        while self.size_bytes > self.LIMIT_BYTES and len(self.chunks) > 1:
+            self.size_bytes -= len(self.chunks.pop(0))
+
+
+def _is_process_stderr(stream) -> bool:
+    try:
+        return stream is sys.__stderr__ and stream.fileno() == 2
+    except (AttributeError, ValueError, io.UnsupportedOperation):
+        return False
+
+
+@contextlib.contextmanager
+def library_chatter_held() -> Iterator[HeldChatter]:
+    """Hold back everything written on stderr's file descriptor while the block runs: the lines that C
+    libraries print beside a failure ("libpng error: IDAT: invalid ...", OpenCV's and Open3D's warnings),
+    Python warnings, and the output of worker processes (52 tracebacks on Ctrl-C). Python's `sys.stderr`
+    (the command's own lines, progress bars) still goes straight to the terminal. When the block ends the
+    held text is written out if `keep` is still true (a command that succeeded) and dropped otherwise, so
+    a failing command says exactly its one line.
+
+    Only for the process's real stderr (the console script): in-process callers with their own
+    `sys.stderr` (tests, notebooks) see no change. Where nothing can be redirected, nothing is held."""
+    global _forked_stderr
+    held = HeldChatter()
+    if not _is_process_stderr(sys.stderr):
+        yield held
+        return
+    process_stderr = sys.stderr
+    try:
+        process_stderr.flush()
+        _flush_c_stdio()
+        terminal_fd = os.dup(2)
+        read_fd, write_fd = os.pipe()
+    except OSError:
+        yield held
+        return
+    os.dup2(write_fd, 2)
+    os.close(write_fd)
+
+    def drain() -> None:
+        with contextlib.suppress(OSError):
+            while chunk := os.read(read_fd, 65536):
+                held.take(chunk)
+        os.close(read_fd)
+
+    reader = threading.Thread(target=drain, name="spare-twin-held-stderr", daemon=True)
+    reader.start()
+    encoding = getattr(process_stderr, "encoding", None) or "utf-8"
+    sys.stderr = open(terminal_fd, "w", encoding=encoding, errors="backslashreplace", closefd=False, buffering=1)
+    _forked_stderr = process_stderr
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = _warning_to_fd2
+            yield held
+    finally:
+        with contextlib.suppress(OSError, ValueError):
+            sys.stderr.flush()
+        _flush_c_stdio()
+        sys.stderr, _forked_stderr = process_stderr, None
+        os.dup2(terminal_fd, 2)  # closes the pipe's writing end here: the reader sees its end ...
+        reader.join(timeout=0.5)  # ... unless a worker still holds it; then what came so far
+        if held.keep and held.chunks:
+            with contextlib.suppress(OSError):
+                os.write(2, b"".join(held.chunks))
+        os.close(terminal_fd)
+
+
+def _warning_to_fd2(message, category, filename, lineno, file=None, line=None) -> None:
+    # warnings.showwarning writes to sys.stderr, which goes to the terminal while chatter is held
+    with contextlib.suppress(OSError):
+        os.write(2, warnings.formatwarning(message, category, filename, lineno, line).encode(errors="replace"))
