@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import tempfile
 from contextlib import contextmanager
@@ -39,20 +40,60 @@ def write_json_atomic(path: str | Path, obj) -> None:
     write_bytes_atomic(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
 
 
-def read_json(path: str | Path) -> dict:
+#: Deepest nesting of arrays and objects accepted (the project's files nest at most about 6 deep);
+#: Python's parser recurses per level and dies with RecursionError near 1,000.
+MAX_JSON_DEPTH = 64
+#: Most digits in a JSON integer (a 128-bit seed has 39); Python itself refuses past 4,300 with a ValueError.
+MAX_JSON_INT_DIGITS = 100
+#: Largest JSON file read whole, bytes: recordings and configurations are kilobytes to a few megabytes.
+MAX_JSON_BYTES = 256 * 2**20
+
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"', re.DOTALL)
+
+
+def json_depth(text: str) -> int:
+    """Deepest nesting of [ and { in JSON `text` (brackets inside strings do not count)."""
+    chars = np.frombuffer(_JSON_STRING.sub("", text).encode("utf-8", "replace"), np.uint8)
+    steps = np.isin(chars, (ord("["), ord("{"))).astype(np.int64) - np.isin(chars, (ord("]"), ord("}")))
+    return int(np.cumsum(steps).max(initial=0))
+
+
+def _bounded_int(literal: str) -> int:
+    digits = len(literal.lstrip("-"))
+    if digits > MAX_JSON_INT_DIGITS:
+        raise ValueError(f"an integer of {digits} digits, at most {MAX_JSON_INT_DIGITS}")
+    return int(literal)
+
+
+def parse_json(text: str, where: str):
+    """JSON `text` parsed with its nesting and integer sizes bounded; a one-line error names `where`."""
+    depth = json_depth(text)
+    if depth > MAX_JSON_DEPTH:
+        raise SpareTwinError(f"{where}: not valid JSON (nested {depth} deep, at most {MAX_JSON_DEPTH})")
+    try:
+        return json.loads(text, parse_int=_bounded_int)
+    except ValueError as exc:  # JSONDecodeError included
+        raise SpareTwinError(f"{where}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise SpareTwinError(f"{where}: not valid JSON (nested too deep)") from None
+
+
+def read_json(path: str | Path):
+    """A user's JSON file, bounded (size, nesting, integer digits); every failure is one line naming it."""
     path = Path(path)
     try:
-        return json.loads(path.read_text())
+        if path.is_file() and path.stat().st_size > MAX_JSON_BYTES:
+            raise SpareTwinError(f"{path}: {path.stat().st_size:,} bytes, too large for a JSON file of ours")
+        text = path.read_text()
     except FileNotFoundError:
         raise SpareTwinError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise SpareTwinError(f"{path}: is a folder, not a JSON file") from None
     except OSError as exc:
         raise SpareTwinError(f"{path}: cannot read ({exc.strerror})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+    except UnicodeDecodeError as exc:
         raise SpareTwinError(f"{path}: not valid JSON ({exc})") from None
-    except RecursionError:
-        raise SpareTwinError(f"{path}: not valid JSON (nested too deep)") from None
+    return parse_json(text, str(path))
 
 
 @contextmanager

@@ -41,7 +41,7 @@ def _depth(n):
         ("empty_depth", "frame-000019.depth.png: depth image is empty"),
         ("corrupt_png", "frame-000019.color.png: not a readable image"),
         ("eight_bit_depth", "frame-000019.depth.png: depth must be a single-channel 16-bit PNG"),
-        ("bad_pose", "frame-000019.pose.txt: not a finite 4x4 pose"),
+        ("bad_pose", "frame-000019.pose.txt: not a rigid pose (not finite"),
     ],
 )
 def test_bad_frames(tmp_path, capsys, case, expect):

@@ -34,6 +34,7 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.io import encode_png, read_png
 from spare_twin.output import check_output
 from spare_twin.recording import Camera, Recording, RecordingWriter
+from spare_twin.validate import check_pose
 
 #: The command whose output an imported recording is (its output marker).
 IMPORT = "capture import"
@@ -178,6 +179,8 @@ def write_source(
             _frame(f, source, (h, w), depth_scale)
             bar.update(1)
     has_poses = all(f.T_world_camera is not None for f in frames)
+    for f in frames if has_poses else ():  # a layout's poses, whatever lister found them: rigid, plausible
+        check_pose(f.T_world_camera, f"{f.color}: its pose")
     camera = Camera("cam0", w, h, K, None, "per_frame" if has_poses else "unknown")
     times = [f.timestamp_s for f in frames]
     fps = opts.fps or source.fps

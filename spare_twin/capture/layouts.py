@@ -11,9 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin.capture.frames import K_from, read_K_txt, read_pose_txt
+from spare_twin.capture.frames import K_from, read_K_txt
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json
+from spare_twin.validate import check_pose
 
 LAYOUTS = ("7scenes", "tum", "open3d", "bag")
 TUM_DEPTH_SCALE = 1.0 / 5000.0
@@ -75,7 +76,7 @@ def list_7scenes(src: Path) -> Source:
         first_missing = next(n for n in sorted(colors) if not poses[n].is_file())
         raise SpareTwinError(f"{poses[first_missing]}: missing (other frames have poses)")
     frames = [
-        FrameFiles(f"frame-{n:06d}", colors[n], depths[n], read_pose_txt(poses[n]) if have else None)
+        FrameFiles(f"frame-{n:06d}", colors[n], depths[n], _pose_file(poses[n]) if have else None)
         for n in sorted(colors)
     ]
     K = None
@@ -87,6 +88,15 @@ def list_7scenes(src: Path) -> Source:
     return Source(
         frames, K, MM_DEPTH_SCALE, None, "unknown (7-Scenes / tsdf-fusion layout)", "7scenes", depth_invalid_value=65535
     )
+
+
+def _pose_file(path: Path) -> np.ndarray:
+    """A 7-Scenes frame-NNNNNN.pose.txt: a rigid 4x4 camera-to-world pose (bottom row 0 0 0 1, under a km)."""
+    try:
+        T = np.loadtxt(path, dtype=np.float64)
+    except (ValueError, OSError) as exc:
+        raise SpareTwinError(f"{path}: not a 4x4 pose ({' '.join(str(exc).split())})") from None
+    return check_pose(T, str(path))
 
 
 def _read_tum_list(path: Path) -> list[tuple[float, list[str]]]:
@@ -109,17 +119,22 @@ def _nearest(t: float, times: np.ndarray) -> int:
     return int(np.argmin(np.abs(times - t)))
 
 
-def _tum_pose(values: list[str], path: Path) -> np.ndarray:
+def _tum_pose(values: list[str], path: Path, t: float) -> np.ndarray:
     from scipy.spatial.transform import Rotation
 
+    where = f"{path}: the pose at {t:.6f} s"
     try:
         tx, ty, tz, qx, qy, qz, qw = (float(v) for v in values[:7])
     except ValueError:
         raise SpareTwinError(f"{path}: expected 'timestamp tx ty tz qx qy qz qw'") from None
+    q = np.array([qx, qy, qz, qw])
+    norm = float(np.linalg.norm(q)) if np.isfinite(q).all() else 0.0
+    if not 0.5 < norm < 2.0:  # scipy would normalise anything non-zero; a far-off norm is not a rotation
+        raise SpareTwinError(f"{where}: quaternion {qx:g} {qy:g} {qz:g} {qw:g} is not a unit quaternion")
     T = np.eye(4)
-    T[:3, :3] = Rotation.from_quat([qx, qy, qz, qw]).as_matrix()  # scipy: scalar-last, like TUM
+    T[:3, :3] = Rotation.from_quat(q / norm).as_matrix()  # scipy: scalar-last, like TUM
     T[:3, 3] = (tx, ty, tz)
-    return T
+    return check_pose(T, where)
 
 
 def list_tum(src: Path) -> Source:
@@ -146,7 +161,7 @@ def list_tum(src: Path) -> Source:
         if gt is not None:
             k = _nearest(t, gt_times)
             if abs(gt_times[k] - t) <= TUM_MAX_DT_S:
-                pose = _tum_pose(gt[k][1], src / "groundtruth.txt")
+                pose = _tum_pose(gt[k][1], src / "groundtruth.txt", gt_times[k])
         frames.append(FrameFiles(Path(name).stem, src / name, src / depth[j][1][0], pose, t))
     if not frames:
         raise SpareTwinError(f"{rgb_txt}: no colour frame has a depth frame within {TUM_MAX_DT_S} s")

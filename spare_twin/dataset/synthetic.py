@@ -24,6 +24,7 @@ import torch.utils.data as _tud
 from spare_twin.config import PartDims, sample_lengths
 from spare_twin.dataset.torch_data import stream_indices
 from spare_twin.errors import SpareTwinError
+from spare_twin.io import read_json
 from spare_twin.sim.rig import Rig
 
 FORMAT = "spare-twin-synthetic"
@@ -219,7 +220,7 @@ def write_synthetic(root: str | Path, spec: SyntheticSpec = SyntheticSpec()) -> 
 
 
 def read_spec(root: str | Path) -> SyntheticSpec:
-    d = json.loads((Path(root) / "synthetic.json").read_text())
+    d = read_json(Path(root) / "synthetic.json")
     d.pop("format", None)
     d.pop("rig", None)
     d["sizes"] = tuple((str(a), int(b)) for a, b in d["sizes"])

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
+from spare_twin.validate import check_pose
 
 FORMAT = "spare-twin-recording"
 VERSION = 1
@@ -19,6 +20,10 @@ SIM_DEPTH_SCALE = 1e-4  # 0.1 mm per unit: up to 6.5 m in uint16
 POSES = ("fixed", "per_frame", "unknown")
 #: Beside cameras/<cam>/T_world_camera.npy: the poses a camera had before its first registration.
 REFERENCE_POSES = "T_world_camera.reference.npy"
+
+
+#: Most frames in a recording: the frame files are numbered with 6 digits (at 30 fps, over 9 hours).
+MAX_FRAMES = 999_999
 
 
 def frame_file_name(i: int) -> str:
@@ -79,6 +84,8 @@ class Camera:
             raise SpareTwinError(f"{source}: camera {name}: K must be 3x3 and T_world_camera 4x4")
         if not np.isfinite(K).all() or (T is not None and not np.isfinite(T).all()):
             raise SpareTwinError(f"{source}: camera {name}: K and T_world_camera must be finite")
+        if T is not None:
+            check_pose(T, f"{source}: camera {name}: T_world_camera")
         return cls(name, d["width"], d["height"], K, T, poses)
 
 
@@ -138,6 +145,12 @@ class Registration:
             raise SpareTwinError(f"{source}: bad registration entry ({exc})") from None
         if reg.object is not None and ("file" not in reg.object or "T_world_object" not in reg.object):
             raise SpareTwinError(f"{source}: registration object needs a file and T_world_object")
+        if reg.object is not None:
+            try:
+                T = np.asarray(reg.object["T_world_object"], dtype=np.float64)
+            except (TypeError, ValueError, OverflowError) as exc:
+                raise SpareTwinError(f"{source}: registration: object: bad T_world_object ({exc})") from None
+            check_pose(T, f"{source}: registration: object: T_world_object")
         return reg
 
     @property

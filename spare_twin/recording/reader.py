@@ -12,9 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import read_png, write_bytes_atomic
+from spare_twin.io import read_json, read_png, write_bytes_atomic
 from spare_twin.recording.format import (
     FORMAT,
+    MAX_FRAMES,
     REFERENCE_POSES,
     VERSION,
     Camera,
@@ -22,6 +23,7 @@ from spare_twin.recording.format import (
     frame_file_name,
     npz_bytes,
 )
+from spare_twin.validate import check_poses
 
 
 @dataclass
@@ -41,12 +43,7 @@ class Recording:
             raise SpareTwinError(f"{root}: not a folder")
         if not meta_path.is_file():
             raise SpareTwinError(f"{root}: not a recording (no recording.json)")
-        try:
-            meta = json.loads(meta_path.read_text())
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise SpareTwinError(f"{meta_path}: not valid JSON ({exc})") from None
-        except OSError as exc:
-            raise SpareTwinError(f"{meta_path}: cannot be read ({exc.strerror})") from None
+        meta = read_json(meta_path)  # bounded: nesting, integer digits, size
         _check_meta(meta, meta_path)
         cameras = [Camera.from_dict(c, str(meta_path)) for c in meta["cameras"]]
         names = [c.name for c in cameras]
@@ -252,8 +249,8 @@ def _check_meta(meta, meta_path: Path) -> None:
         return SpareTwinError(f"{meta_path}: {key} {json.dumps(meta[key])[:40]}: must be {want}")
 
     frames = meta["frames"]
-    if type(frames) is not int or frames < 1:
-        raise bad("frames", "a whole number of frames, at least 1")
+    if type(frames) is not int or not 1 <= frames <= MAX_FRAMES:
+        raise bad("frames", f"a whole number of frames, 1..{MAX_FRAMES:,} (frame files have 6 digits)")
     if not _number(meta["fps"]) or meta["fps"] <= 0:
         raise bad("fps", "a positive number")
     if not _number(meta["depth_scale"]) or not 0 < meta["depth_scale"] <= 1:
@@ -274,7 +271,7 @@ def _check_meta(meta, meta_path: Path) -> None:
 
 
 def _load_poses(p: Path, frames: int) -> np.ndarray:
-    """A (frames, 4, 4) array of finite camera-to-world poses from `p` (the writer refuses any other)."""
+    """A (frames, 4, 4) array of rigid camera-to-world poses from `p` (the writer refuses any other)."""
     try:
         poses = np.load(p, allow_pickle=False)
     except (OSError, ValueError, EOFError, pickle.UnpicklingError) as exc:
@@ -283,7 +280,4 @@ def _load_poses(p: Path, frames: int) -> np.ndarray:
         raise SpareTwinError(f"{p}: expected a numeric array of poses")
     if poses.shape != (frames, 4, 4):
         raise SpareTwinError(f"{p}: expected shape ({frames}, 4, 4), got {poses.shape}")
-    poses = poses.astype(np.float64)
-    if not np.isfinite(poses).all():
-        raise SpareTwinError(f"{p}: poses must be finite (NaN or infinity found)")
-    return poses
+    return check_poses(poses, str(p))  # finite, rigid, a proper bottom row, a plausible translation

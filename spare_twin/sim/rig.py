@@ -19,6 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
+from spare_twin.io import read_json
 
 #: Folder of the shipped rig files (repository root / capture / rigs).
 RIGS_DIR = Path(__file__).resolve().parents[2] / "capture" / "rigs"
@@ -130,11 +131,7 @@ def load_rig(name_or_path: str | Path | None = None) -> Rig:
         if str(name_or_path) == DEFAULT_RIG:
             return Rig()  # the shipped default, even when capture/ is not installed alongside
         raise SpareTwinError(f"rig {str(name_or_path)!r}: no such rig (looked for {p})")
-    try:
-        d = json.loads(p.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SpareTwinError(f"{p}: not valid JSON ({exc})") from None
-    return Rig.from_dict(d, source=str(p))
+    return Rig.from_dict(read_json(p), source=str(p))  # bounded: nesting, integer digits, size
 
 
 def intrinsics(fov_y_deg: float, width: int, height: int) -> np.ndarray:
