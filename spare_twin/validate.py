@@ -110,6 +110,6 @@ def cap_workers(workers: int, work: int, name: str = "workers") -> int:
     cores = usable_cores()
     capped = max(1, min(workers, cores, work))
     if capped < workers:
-        reasons = [f"{cores} cores" if cores < workers else "", f"{work} to do" if work < workers else ""]
+        reasons = [f"{cores} cores" if cores == capped else "", f"{work} to do" if work == capped else ""]
         print(f"note: {name} {workers}: using {capped} ({', '.join(r for r in reasons if r)})", file=sys.stderr)
     return capped

@@ -12,7 +12,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -232,3 +231,313 @@ def test_json_reader_bounds():
         parse_json("[" * 65 + "]" * 65, "f")
     with pytest.raises(SpareTwinError, match=r"^f: not valid JSON \(an integer of 101 digits"):
         parse_json("[-" + "9" * 101 + "]", "f")
+
+
+# -- checkpoints -------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tmp_path_factory):
+    """A small, untrained but well-formed count network checkpoint."""
+    from spare_twin.nets import checkpoint as ckpt
+    from spare_twin.nets.models import build_model
+    from spare_twin.nets.presets import resolve
+
+    preset = resolve("conv3d-depth-mv-count", {"net": {"channels": [4, 8], "fc_hidden": 16}})
+    model = build_model(preset.net)
+    path = tmp_path_factory.mktemp("ckpt") / "good.pt"
+    meta = ckpt.new_meta("data", "spare8", 0, "test")
+    return ckpt.save(path, ckpt.model_record(preset.name, preset.net, preset.train, model, meta))
+
+
+def _spoil_checkpoint(src: Path, dst: Path, spoil) -> None:
+    import torch
+
+    ck = torch.load(src, weights_only=True)
+    spoil(ck)
+    torch.save(ck, dst)
+
+
+def _nan_weight(ck):
+    name = next(k for k, v in ck["state_dict"].items() if v.is_floating_point() and v.numel() > 1)
+    ck["state_dict"][name][0] = float("nan")
+
+
+def _other_shape(ck):
+    ck["net"]["channels"] = [8, 16]
+
+
+SPOILED_CHECKPOINTS = {
+    "nan-weight": (_nan_weight, "is not finite"),
+    "no-net": (lambda ck: ck.pop("net"), "no 'net'"),
+    "no-state-dict": (lambda ck: ck.pop("state_dict"), "no 'state_dict'"),
+    "state-dict-a-list": (lambda ck: ck.update(state_dict=[1, 2]), "'state_dict' must be a dict"),
+    "weights-of-another-shape": (_other_shape, "weights do not fit"),
+    "net-not-a-config": (lambda ck: ck["net"].update(grid=5), "net: not a network configuration"),
+}
+
+
+@pytest.mark.parametrize("spoil", SPOILED_CHECKPOINTS)
+def test_checkpoint_structure_and_finite_weights(spoil, tiny_checkpoint, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "data").mkdir()
+    how, words = SPOILED_CHECKPOINTS[spoil]
+    _spoil_checkpoint(tiny_checkpoint, tmp_path / "bad.pt", how)
+    refused(["evaluate", "--model", "bad.pt", "--data", "data"], capsys, tmp_path, "bad.pt", words)
+
+
+def test_a_well_formed_checkpoint_loads(tiny_checkpoint):
+    from spare_twin.nets.checkpoint import load_model
+
+    model, net, ck = load_model(tiny_checkpoint)
+    assert net.arch == ck["net"]["arch"] and not model.training
+
+
+# -- URDFs -------------------------------------------------------------------------------------------
+
+
+def _urdf(obj: Path) -> Path:
+    return next(obj.glob("*.urdf"))
+
+
+def _joint_fixed(text: str) -> str:
+    start = text.index('<joint name="joint2"')
+    return text[:start] + text[start:].replace('type="revolute"', 'type="fixed"', 1)
+
+
+def _joint_deleted(text: str) -> str:
+    start = text.index('<joint name="joint2"')
+    end = text.index("</joint>", start) + len("</joint>")
+    return text[:start] + text[end:]
+
+
+def _child_link0(text: str) -> str:
+    start = text.index('<joint name="joint2"')
+    return text[:start] + text[start:].replace('<child link="link2"/>', '<child link="link0"/>', 1)
+
+
+def _mesh_missing(text: str) -> str:
+    return text.replace('filename="link2.stl"', 'filename="link2_gone.stl"')
+
+
+def _nan_origin(text: str) -> str:
+    start = text.index('<joint name="joint2"')
+    head, tail = text[:start], text[start:]
+    i = tail.index('xyz="') + len('xyz="')
+    return head + tail[:i] + "nan " + tail[tail.index(" ", i) + 1 :]
+
+
+SPOILED_URDFS = {
+    "joint2-fixed": (_joint_fixed, "joint joint2 is 'fixed', must be 'revolute'"),
+    "joint2-deleted": (_joint_deleted, "no joint named joint2"),
+    "joint2-child-link0": (_child_link0, "joint joint2 joins link1 -> link0, must join link1 -> link2"),
+    "mesh-missing": (_mesh_missing, "mesh 'link2_gone.stl': no such file"),
+    "nan-origin": (_nan_origin, "must be finite numbers"),
+}
+
+
+@pytest.mark.parametrize("spoil", SPOILED_URDFS)
+def test_render_checks_the_urdf_against_the_object(spoil, printed_object, tmp_path, capsys, monkeypatch):
+    """Today: `fixed` renders with exit 0 and wrong ground truth; a deleted joint or a loop is SIGSEGV."""
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(printed_object.root, tmp_path / "obj")
+    how, words = SPOILED_URDFS[spoil]
+    urdf = _urdf(tmp_path / "obj")
+    spoiled = how(urdf.read_text())
+    assert spoiled != urdf.read_text()
+    urdf.write_text(spoiled)
+    argv = ["render", "obj", "--out", "rec", "--frames", "1", "--resolution", "32x24"]
+    refused(argv, capsys, tmp_path, urdf.name, words)
+
+
+def test_the_twin_checks_the_urdf_before_pybullet(printed_object, tmp_path):
+    """Every pybullet load goes through the check (the dataset's sequences too), not only render's."""
+    from spare_twin.object.folder import load_object
+    from spare_twin.sim.twin import Twin
+
+    shutil.copytree(printed_object.root, tmp_path / "obj")
+    urdf = _urdf(tmp_path / "obj")
+    urdf.write_text(_child_link0(urdf.read_text()))
+    with Twin() as twin, pytest.raises(SpareTwinError, match="must join link1 -> link2"):
+        twin.load(load_object(tmp_path / "obj"))
+
+
+def test_urdf_check_accepts_every_built_object(object_dirs):
+    from spare_twin.object.urdf import check_urdf
+
+    for n, obj in object_dirs.items():
+        check_urdf(obj.urdf_path, n)
+
+
+# -- sizes, counts and workers -----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["render", "OBJ", "--out", "rec", "--frames", str(10**12)], "--frames 1000000000000: at most 999,999"),
+        (["dataset", "--out", "data", "--instances", "2", "--frames", str(10**12)], "--frames 1000000000000: at most"),
+        (["dataset", "--out", "data", "--instances", str(10**12)], "--instances 1000000000000: at most 999,999"),
+        (["dataset", "--out", "data", "--instances", "2", "--frames", "9000"], "--frames 9000: at most"),
+        (["dataset", "--out", "data", "--instances", "2", "--frames", "0"], "--frames 0: must be a whole number"),
+    ],
+    ids=["render-frames", "dataset-frames", "dataset-instances", "dataset-frames-over-memory", "dataset-frames-0"],
+)
+def test_sizes_and_counts_are_bounded_before_anything_is_written(
+    argv, words, printed_object, tmp_path, capsys, monkeypatch
+):
+    from spare_twin import validate
+
+    monkeypatch.chdir(tmp_path)
+    # a 1 GiB machine: 9,000 frames of 8 network images (393 kB a frame) no longer fit in half of it
+    monkeypatch.setattr(validate, "memory_bytes", lambda: 2**30)
+    argv = [str(printed_object.root) if a == "OBJ" else a for a in argv]
+    refused(argv, capsys, tmp_path, words)
+    assert not (tmp_path / "data").exists() and not (tmp_path / "rec").exists()
+
+
+def test_a_refused_dataset_size_leaves_nothing_that_blocks_the_corrected_command(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code, _, _ = run_cli(["dataset", "--out", "data", "--instances", "1", "--frames", str(10**12)], capsys)
+    assert code == 1 and not (tmp_path / "data").exists()
+    code, out, err = run_cli(["dataset", "--out", "data", "--instances", "1", "--frames", "1"], capsys)
+    assert code == 0, err
+    assert "wrote 1 new sequences" in out
+
+
+def test_workers_are_capped_at_the_cores_and_the_work(tmp_path, capsys, monkeypatch):
+    """`--workers 500` for 2 sequences: one note, then a pool of at most 2 (not 500 processes idling)."""
+    from spare_twin.dataset import backends
+
+    monkeypatch.chdir(tmp_path)
+    pools = []
+    real_run_local = backends.run_local
+
+    def spy(todo, cfg, seed, seq_dir, workers=1):
+        pools.append(workers)
+        return real_run_local(todo, cfg, seed, seq_dir, 1)  # the pool size is what is checked; render here
+
+    monkeypatch.setattr("spare_twin.dataset.build.run_local", spy)
+    argv = ["dataset", "--out", "data", "--instances", "2", "--frames", "1", "--workers", "500"]
+    code, out, err = run_cli(argv, capsys)
+    assert code == 0, err
+    notes = [ln for ln in lines(err) if ln.startswith("note: ")]
+    assert pools == [min(2, len(os.sched_getaffinity(0)))]
+    assert len(notes) == 1 and notes[0].startswith(f"note: workers 500: using {pools[0]} ("), notes
+
+
+def test_cap_workers_says_why_once(capsys, monkeypatch):
+    from spare_twin import validate
+
+    monkeypatch.setattr(validate, "usable_cores", lambda: 16)
+    assert validate.cap_workers(40, 2) == 2
+    assert validate.cap_workers(8, 100) == 8
+    assert validate.cap_workers(500, 1000) == 16
+    err = capsys.readouterr().err.splitlines()
+    assert err == ["note: workers 40: using 2 (2 to do)", "note: workers 500: using 16 (16 cores)"]
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        text = (task / "children").read_text().split()
+        out += [int(c) for c in text]
+    return out
+
+
+def test_ctrl_c_stops_the_worker_pool_quietly(tmp_path):
+    """SIGINT to the whole process group, as a terminal's Ctrl-C sends it, with a pool of 2 rendering:
+    one line, exit 130, no worker traceback, no process left."""
+    argv = [SPARE_TWIN, "dataset", "--out", "data", "--instances", "8", "--frames", "40", "--workers", "2"]
+    proc = subprocess.Popen(
+        argv, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 60
+        workers: list[int] = []
+        while time.monotonic() < deadline and proc.poll() is None:
+            # the pool's workers are spawned python processes (a resource tracker is one child more)
+            workers = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+            if len(workers) == 2:
+                break
+            time.sleep(0.1)
+        assert len(workers) == 2, "the pool of 2 never started"
+        time.sleep(0.5)  # the workers are importing or rendering: either way they must stay quiet
+        os.killpg(proc.pid, signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == 130, err
+    assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
+    said = [ln for ln in lines(err) if not ln.startswith("dataset data:")]  # the progress bar's last state
+    assert said == ["spare-twin dataset: interrupted"], said
+    for pid in workers:
+        for _ in range(50):
+            if not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]:
+                break
+            time.sleep(0.1)
+        else:
+            pytest.fail(f"worker {pid} outlived the interrupted run")
+
+
+def test_pool_workers_leave_ctrl_c_to_the_driver():
+    """Deterministic half of the test above: every worker ignores SIGINT, the driver's handler and
+    signal mask are as before (a Ctrl-C while the pool starts is held, not lost)."""
+    from spare_twin.dataset.backends import start_pool
+
+    before = signal.getsignal(signal.SIGINT)
+    with start_pool(2, os.getpid, ()) as pool:
+        handlers = pool.map(signal.getsignal, [signal.SIGINT] * 4, chunksize=1)
+    assert set(handlers) == {signal.SIG_IGN}
+    assert signal.getsignal(signal.SIGINT) is before
+    assert signal.SIGINT not in signal.pthread_sigmask(signal.SIG_BLOCK, [])
+
+
+# -- dataset shards ----------------------------------------------------------------------------------
+
+
+def test_a_shard_that_does_not_read_back_is_made_again(tmp_path, capsys, monkeypatch):
+    """One shard truncated, one replaced by garbage: resuming re-renders both (same bytes as before),
+    it never counts them as done; reading a bad one for training is one line naming it."""
+    from spare_twin.dataset.build import build_manifest
+    from spare_twin.dataset.torch_data import SpareDataset
+
+    monkeypatch.chdir(tmp_path)
+    argv = ["dataset", "--out", "data", "--instances", "3", "--frames", "1"]
+    code, _, err = run_cli(argv, capsys)
+    assert code == 0, err
+    seq = tmp_path / "data" / "sequences"
+    good = {p.name: p.read_bytes() for p in seq.glob("seq-*.h5")}
+    assert len(good) == 3
+    truncated, garbage = seq / "seq-000000.h5", seq / "seq-000002.h5"
+    truncated.write_bytes(good[truncated.name][: len(good[truncated.name]) // 2])
+    garbage.write_bytes(b"not an HDF5 file " * 100)
+
+    manifest = build_manifest(tmp_path / "data", 3)  # as after a run cut short: the bad shards are not done
+    assert [r["index"] for r in manifest["sequences"]] == [1] and not manifest["complete"]
+    data = SpareDataset(tmp_path / "data", split="all")
+    with pytest.raises(SpareTwinError, match=r"seq-00000[02]\.h5: unreadable"):
+        for i in range(len(data)):
+            data[i]
+
+    code, out, err = run_cli(argv, capsys)
+    assert code == 0, err
+    assert "wrote 2 new sequences" in out and "1 were already there" in out, out
+    notes = [ln for ln in lines(err) if ln.startswith("note: ")]
+    assert len(notes) == 2 and "seq-000000.h5: does not read back" in notes[0], notes
+    assert "seq-000002.h5: does not read back" in notes[1]
+    assert {p.name: p.read_bytes() for p in seq.glob("seq-*.h5")} == good
+    assert json.loads((tmp_path / "data" / "manifest.json").read_text())["complete"]
+
+
+def test_shard_check_reads_a_good_shard_and_names_a_wrong_one(tmp_path, capsys, monkeypatch):
+    from spare_twin.dataset.store import shard_problem
+
+    monkeypatch.chdir(tmp_path)
+    assert run_cli(["dataset", "--out", "data", "--instances", "1", "--frames", "2"], capsys)[0] == 0
+    f = tmp_path / "data" / "sequences" / "seq-000000.h5"
+    assert shard_problem(f, 0, 8, 2, 96, 128) is None
+    assert "not 1" in shard_problem(f, 1, 8, 2, 96, 128)
+    assert "expected (8, 3, 96, 128)" in shard_problem(f, 0, 8, 3, 96, 128)
+    assert shard_problem(tmp_path / "nothing.h5", 0, 8, 2, 96, 128).startswith("unreadable")

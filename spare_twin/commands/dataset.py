@@ -89,8 +89,6 @@ def run(args: argparse.Namespace) -> int:
         raise SpareTwinError("give --instances K or a --preset")
     seed = args.seed if args.seed is not None else (preset.seed if preset else 0)
     frames = args.frames if args.frames is not None else (preset.frames if preset else 100)
-    if frames < 1:
-        raise SpareTwinError("--frames must be at least 1")
     if args.backend != "ray" and (args.ray_address is not None or args.ray_shards != "driver"):
         raise SpareTwinError("--ray-address and --ray-shards need --backend ray")
     cfg = GenConfig(
@@ -102,6 +100,7 @@ def run(args: argparse.Namespace) -> int:
     )
     with flags(
         instances="--instances",
+        frames="--frames",
         seed="--seed",
         workers="--workers",
         backend="--backend",

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import multiprocessing as mp
 import os
+import signal
 import tempfile
+import threading
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
@@ -63,6 +65,30 @@ def check_workers(workers: int | None) -> None:
 _POOL: dict = {}
 
 
+def start_pool(workers: int, initializer, initargs: tuple):
+    """A pool of `workers` spawned processes (pybullet clients must not be forked) that stay quiet on Ctrl-C.
+
+    SIGINT is blocked while they start: they inherit the block through exec, so a Ctrl-C while they
+    import prints no traceback, and their initializer then ignores it; in the driver it stays pending
+    meanwhile, and is answered as soon as the pool stands (never lost)."""
+    ctx = mp.get_context("spawn")
+    main = threading.current_thread() is threading.main_thread()
+    blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT}) if main else None
+    try:
+        return ctx.Pool(workers, initializer=_initialize_quietly, initargs=(initializer, *initargs))
+    finally:
+        if main:
+            signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+
+
+def _initialize_quietly(initializer, *initargs) -> None:
+    """A pool worker leaves Ctrl-C to the driver: the terminal sends SIGINT to the whole process group,
+    and the driver alone answers it (one line, exit 130) and terminates the pool."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by start_pool; ignored from now
+    initializer(*initargs)
+
+
 def _pool_init(cfg_dict: dict, seed: int, seq_dir: str) -> None:
     _POOL["renderer"] = SequenceRenderer(GenConfig.from_dict(cfg_dict), seed)
     _POOL["seq_dir"] = seq_dir
@@ -85,6 +111,6 @@ def run_local(todo: Iterable[int], cfg: GenConfig, seed: int, seq_dir: Path, wor
         finally:
             renderer.close()
         return
-    ctx = mp.get_context("spawn")  # pybullet clients must not be forked
-    with ctx.Pool(workers, initializer=_pool_init, initargs=(cfg.to_dict(), seed, os.fspath(seq_dir))) as pool:
+    pool = start_pool(workers, _pool_init, (cfg.to_dict(), seed, os.fspath(seq_dir)))
+    with pool:  # on leaving, also by an interrupt: the workers are terminated
         yield from pool.imap_unordered(_pool_work, todo, chunksize=1)

@@ -91,3 +91,42 @@ def write_sequence(path: str | Path, seq, fps: float, compression_level: int = 1
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+#: The small arrays of a sequence file and their leading dimensions (V cameras, T frames).
+_SMALL = {"K": "V", "T_world_camera": "V", "joint_angles_rad": "T", "T_world_link": "T"}
+
+
+def shard_problem(
+    path: str | Path, index: int, cameras: int, frames: int, height: int, width: int, segmentation: bool = True
+) -> str | None:
+    """Why sequence file `path` does not read back as sequence `index` of this size, or None when it does.
+
+    Cheap (a few milliseconds): it opens the file, checks its format, index and array shapes, and
+    decompresses the last image of each image array, the bytes a truncated file loses first."""
+    import h5py
+
+    want = (cameras, frames, height, width)
+    try:
+        with h5py.File(path, "r") as f:
+            if f.attrs.get("format") != SEQUENCE_FORMAT:
+                return f"not a {SEQUENCE_FORMAT} file"
+            if int(f.attrs.get("index", -1)) != index:
+                return f"holds sequence {f.attrs.get('index')}, not {index}"
+            for key in IMAGE_KEYS:
+                if key not in f:
+                    if key == "segmentation" and not segmentation:
+                        continue
+                    return f"no {key} images"
+                if f[key].shape != want:
+                    return f"{key} has shape {f[key].shape}, expected {want}"
+                f[key][-1, -1]  # noqa: B018  (read: a truncated or garbled file fails here)
+            for key, dim in _SMALL.items():
+                if key not in f:
+                    return f"no {key}"
+                if f[key].shape[0] != (cameras if dim == "V" else frames):
+                    return f"{key} has shape {f[key].shape}"
+                f[key][()]  # noqa: B018
+    except (OSError, KeyError, ValueError, RuntimeError, TypeError) as exc:
+        return f"unreadable: {' '.join(str(exc).split())[:120]}"
+    return None

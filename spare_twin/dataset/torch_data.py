@@ -171,9 +171,31 @@ class SpareDataset(Dataset):
         row = self.rows[i // per]
         j = i % per
         f = self._file(row)
+        try:  # h5py's own messages name no file
+            r = self._read(f, j)
+        except (OSError, KeyError, ValueError, RuntimeError) as exc:
+            why = " ".join(str(exc).split())[:120]
+            raise SpareTwinError(f"{self.root / row['file']}: unreadable sequence file ({why})") from None
         augmented = self.noise or self.jitter_grey or self.pose_jitter
         rng = np.random.default_rng([self.seed, i, torch.initial_seed() % (2**32)]) if augmented else None
-        n = int(f.attrs["n_links"])
+        return make_sample(
+            r["imgs"],
+            r["depth_scale"],
+            self.modality,
+            r["n"],
+            r["lengths"],
+            r["joints"],
+            r["K"],
+            r["T_wc"],
+            r["print_scale"],
+            self.noise,
+            self.jitter_grey,
+            rng,
+            self.pose_jitter,
+        )
+
+    def _read(self, f, j: int) -> dict:
+        """Item `j`'s arrays and attributes from the open sequence file `f`."""
         if self.mode == "mv":
             t = self.times[j]
             imgs = f[self.modality][:, t]
@@ -181,21 +203,16 @@ class SpareDataset(Dataset):
         else:
             imgs = f[self.modality][j]
             joints, K, T_wc = f["joint_angles_rad"][()], f["K"][j : j + 1], f["T_world_camera"][j : j + 1]
-        return make_sample(
-            imgs,
-            f.attrs["depth_scale"],
-            self.modality,
-            n,
-            f["lengths_label_m"][()],
-            joints,
-            K,
-            T_wc,
-            f.attrs["print_scale"],
-            self.noise,
-            self.jitter_grey,
-            rng,
-            self.pose_jitter,
-        )
+        return {
+            "imgs": imgs,
+            "joints": joints,
+            "K": K,
+            "T_wc": T_wc,
+            "n": int(f.attrs["n_links"]),
+            "depth_scale": f.attrs["depth_scale"],
+            "print_scale": f.attrs["print_scale"],
+            "lengths": f["lengths_label_m"][()],
+        }
 
 
 def MultiViewDataset(root, split="train", modality="depth", **kw) -> SpareDataset:

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import dataclasses
 import io
-import json
 import os
 import platform
 import shutil
@@ -25,7 +24,7 @@ from pathlib import Path
 import torch
 
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import write_bytes_atomic, write_json_atomic
+from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets.models import build_model, input_norms
 from spare_twin.nets.presets import net_from_dict
 
@@ -69,7 +68,27 @@ def load(path: str | Path, device="cpu") -> dict:
         raise SpareTwinError(f"{path}: not a {FORMAT} checkpoint")
     if ck.get("version") != VERSION:
         raise SpareTwinError(f"{path}: unsupported checkpoint version {ck.get('version')}")
+    _check_structure(ck, path)
     return ck
+
+
+#: What every checkpoint holds, and the type of each (the loaders and the model card read them all).
+REQUIRED = {"preset": str, "net": dict, "train": dict, "state_dict": dict, "meta": dict}
+
+
+def _check_structure(ck: dict, path: Path) -> None:
+    """The keys a checkpoint must have, of the right types, and every weight finite: a NaN weight would
+    give NaN scores that argmax turns into a confident-looking answer."""
+    for key, kind in REQUIRED.items():
+        if key not in ck:
+            raise SpareTwinError(f"{path}: not a complete checkpoint (no {key!r})")
+        if not isinstance(ck[key], kind):
+            raise SpareTwinError(f"{path}: {key!r} must be a {kind.__name__}, not a {type(ck[key]).__name__}")
+    for name, value in ck["state_dict"].items():
+        if not isinstance(value, torch.Tensor):
+            raise SpareTwinError(f"{path}: state_dict entry {name!r} is not a tensor")
+        if value.is_floating_point() and not bool(torch.isfinite(value).all()):
+            raise SpareTwinError(f"{path}: weight {name!r} is not finite (NaN or infinity): a broken checkpoint")
 
 
 def model_record(preset_name: str, net, train, model, meta: dict) -> dict:
@@ -91,10 +110,13 @@ def model_record(preset_name: str, net, train, model, meta: dict) -> dict:
 def load_model(path: str | Path, device="cpu"):
     """(model in eval mode, NetConfig, checkpoint dict)."""
     ck = load(path, device)
-    net = net_from_dict(ck["net"], f"{path}: net")
-    model = build_model(net)
     try:
-        model.load_state_dict(ck["state_dict"])
+        net = net_from_dict(ck["net"], f"{path}: net")
+        model = build_model(net)
+    except (TypeError, ValueError, AttributeError, KeyError) as exc:  # a net entry no architecture fits
+        raise SpareTwinError(f"{path}: net: not a network configuration ({type(exc).__name__}: {exc})") from None
+    try:
+        model.load_state_dict(ck["state_dict"])  # strict: every weight of the architecture, of its shape
     except RuntimeError as exc:
         raise SpareTwinError(
             f"{path}: weights do not fit the {net.arch} network ({str(exc).splitlines()[0]})"
@@ -169,10 +191,7 @@ def read_index(models_dir: Path = MODELS_DIR) -> dict:
     p = Path(models_dir) / "index.json"
     if not p.is_file():
         return {"format": "spare-twin-models", "version": 1, "defaults": {}, "models": {}}
-    try:
-        return json.loads(p.read_text())
-    except json.JSONDecodeError as exc:
-        raise SpareTwinError(f"{p}: not valid JSON ({exc})") from None
+    return read_json(p)
 
 
 def default_model(task: str = "predict", models_dir: Path = MODELS_DIR) -> Path:

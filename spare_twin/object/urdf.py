@@ -10,6 +10,7 @@ import yourdfpy
 from lxml import etree
 
 from spare_twin.config import COLORS, ChainSpec
+from spare_twin.errors import SpareTwinError
 from spare_twin.object.kinematics import JOINT_AXIS, joint_limits_rad, joint_origin
 from spare_twin.object.parts import Part
 
@@ -105,3 +106,85 @@ def urdf_bytes(robot: yourdfpy.Robot) -> bytes:
 
 def load_urdf(path: str | Path) -> yourdfpy.URDF:
     return yourdfpy.URDF.load(str(path), build_collision_scene_graph=False, load_collision_meshes=False)
+
+
+#: URDF attributes holding numbers, each checked finite before pybullet parses them.
+_NUMERIC_ATTRIBUTES = {
+    "origin": ("xyz", "rpy"),
+    "axis": ("xyz",),
+    "mass": ("value",),
+    "inertia": ("ixx", "ixy", "ixz", "iyy", "iyz", "izz"),
+    "limit": ("lower", "upper", "effort", "velocity"),
+    "mesh": ("scale",),
+}
+
+
+def check_urdf(path: str | Path, n_links: int) -> None:
+    """The URDF at `path` matches an object of `n_links` moving links, as pybullet will read it: links
+    link0..linkN and revolute joints joint1..jointN chaining link k-1 -> link k, a tree rooted at link0,
+    finite numbers, and every mesh file present. pybullet crashes (SIGSEGV) on a joint loop or a missing
+    joint's orphaned link, and silently renders a joint made fixed; so this runs before it loads the file."""
+    path = Path(path)
+
+    def bad(what: str) -> SpareTwinError:
+        return SpareTwinError(f"{path}: {what}")
+
+    parser = etree.XMLParser(resolve_entities=False, no_network=True, huge_tree=False)
+    try:
+        root = etree.parse(str(path), parser).getroot()
+    except (etree.XMLSyntaxError, OSError) as exc:
+        raise bad(f"not a readable URDF ({' '.join(str(exc).split())})") from None
+    if root.tag != "robot":
+        raise bad(f"not a URDF (root element <{root.tag}>, expected <robot>)")
+    links = [el.get("name") for el in root.findall("link")]
+    joints = {el.get("name"): el for el in root.findall("joint")}
+    if len(set(links)) != len(links) or len(joints) != len(root.findall("joint")):
+        raise bad("link and joint names must be unique")
+    for k in range(n_links + 1):
+        if link_name(k) not in links:
+            raise bad(f"no link named {link_name(k)} (the object has {n_links} moving links)")
+    for k in range(1, n_links + 1):
+        j = joints.get(joint_name(k))
+        if j is None:
+            raise bad(f"no joint named {joint_name(k)} (the object has {n_links} moving links)")
+        if j.get("type") != "revolute":
+            raise bad(f"joint {joint_name(k)} is {j.get('type')!r}, must be 'revolute' (a pin joint)")
+        parent, child = j.find("parent"), j.find("child")
+        have = (None if parent is None else parent.get("link"), None if child is None else child.get("link"))
+        if have != (link_name(k - 1), link_name(k)):
+            raise bad(
+                f"joint {joint_name(k)} joins {have[0]} -> {have[1]}, must join {link_name(k - 1)} -> {link_name(k)}"
+            )
+    # every joint (the chain's and any other) hangs an existing link under an existing one, once: a tree
+    parents: dict[str, str] = {}
+    for name, j in joints.items():
+        parent, child = j.find("parent"), j.find("child")
+        a, b = (None if parent is None else parent.get("link")), (None if child is None else child.get("link"))
+        if a not in links or b not in links:
+            raise bad(f"joint {name} joins {a} -> {b}: no such link")
+        if b in parents or b == link_name(0):
+            raise bad(f"joint {name}: link {b} already has a parent (the links must form a tree from link0)")
+        parents[b] = a
+    for link in links:
+        seen, at = set(), link
+        while at in parents:
+            if at in seen:
+                raise bad(f"link {link}: its joints form a loop")
+            seen.add(at)
+            at = parents[at]
+        if at != link_name(0):
+            raise bad(f"link {link} is not attached to link0")
+    for tag, names in _NUMERIC_ATTRIBUTES.items():
+        for el in root.iter(tag):
+            for attr in names:
+                text = el.get(attr)
+                try:
+                    values = [float(v) for v in text.split()] if text is not None else []
+                except ValueError:
+                    values = [float("nan")]
+                if not np.isfinite(values).all():
+                    raise bad(f"<{tag} {attr}={text!r}>: must be finite numbers")
+    for mesh in root.iter("mesh"):
+        name = mesh.get("filename") or ""
+        if not name or "://" in name or not (path.parent / name).is_file():
+            raise bad(f"mesh {name!r}: no such file beside the URDF")

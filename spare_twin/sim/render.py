@@ -21,13 +21,16 @@ from spare_twin.config import ChainSpec
 from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import load_object
 from spare_twin.object.kinematics import forward_kinematics, link_half_width_m, link_segment_m
+from spare_twin.object.urdf import check_urdf
 from spare_twin.recording import SIM_DEPTH_SCALE, Camera, RecordingWriter
+from spare_twin.recording.format import MAX_FRAMES
 from spare_twin.sim.handheld import MIN_SWEEP_DEG, HandheldPath, handheld_poses
 from spare_twin.sim.motion import MotionConfig, object_motion
 from spare_twin.sim.noise import load_noise
 from spare_twin.sim.rig import Rig, load_rig
 from spare_twin.sim.scene import MAX_CLUTTER, ClutterConfig, add_clutter, sample_clutter
 from spare_twin.sim.twin import Twin
+from spare_twin.validate import check_count, check_fits_memory
 
 PATHS = ("rig", "handheld")
 MOTIONS = ("moving", "static")
@@ -82,8 +85,7 @@ class RenderConfig:
     there is none (no n_links), segmentation is all background."""
 
     def validate(self) -> None:
-        if not _is_int(self.frames) or self.frames < 1:
-            raise SpareTwinError(f"frames {self.frames!r}: must be a whole number, at least 1")
+        check_count("frames", self.frames, MAX_FRAMES, "frame files are numbered with 6 digits")
         if not (isinstance(self.fps, (int, float)) and math.isfinite(self.fps) and self.fps > 0):
             raise SpareTwinError(f"fps {self.fps!r}: must be a positive number")
         if not _is_int(self.seed) or self.seed < 0:
@@ -166,6 +168,10 @@ def render_recording(
     replaces anything else, but never the object folder or a folder around it or inside it."""
     cfg.validate()
     obj = load_object(object_dir)
+    # the motion and link poses of every frame are held in memory (a few kB a frame)
+    check_fits_memory("frames", cfg.frames, (obj.spec.n_links + 12) * 16 * 8 * 2)
+    if not cfg.empty:
+        check_urdf(obj.urdf_path, obj.spec.n_links)  # before the output exists: pybullet may crash on a bad one
     rig = load_rig(cfg.rig)
     W, H = parse_resolution(cfg.resolution, rig)
     noise = load_noise(cfg.noise, param="noise")

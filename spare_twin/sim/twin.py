@@ -21,6 +21,7 @@ import numpy as np
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import ObjectFolder
+from spare_twin.object.urdf import check_urdf
 
 _CV_TO_GL = np.diag([1.0, -1.0, -1.0, 1.0])  # flip y (down -> up) and z (forward -> backward)
 DEFAULT_TABLE_RGBA = (0.55, 0.5, 0.45, 1.0)
@@ -129,6 +130,7 @@ class Twin:
             self.body = None
         if not obj.urdf_path.is_file():
             raise SpareTwinError(f"{obj.urdf_path}: no such URDF")
+        check_urdf(obj.urdf_path, obj.spec.n_links)  # pybullet crashes or misreads on a URDF that does not fit
         try:
             body = p.loadURDF(str(obj.urdf_path), useFixedBase=True, physicsClientId=self.cid)
         except p.error as exc:
