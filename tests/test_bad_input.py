@@ -653,7 +653,7 @@ NOISY_LIBRARY = textwrap.dedent(
 #: Each --json command, and the library function it calls to do its work.
 INJECTED_JSON = {
     "object": ("spare_twin.object.folder:build_object", "object --links 1 --out o --no-preview --json", None),
-    "predict": ("spare_twin.nets.predict:predict_recording", "predict rec --json" + M, rec),
+    "predict": ("spare_twin.predict.run:predict_recording", "predict rec --json" + M, rec),
     "capture-import": (
         "spare_twin.capture.importers:import_folder",
         "capture import src --layout 7scenes --out r --json",

@@ -8,7 +8,6 @@ import contextlib
 import io
 import json
 import math
-from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -226,7 +225,11 @@ def test_bench_interrupted_run_resumes_per_object(tmp_path, monkeypatch):
 
     def fake_predict(rec_dir, model=None, progress=True, **kw):
         calls.append(str(rec_dir))
-        return SimpleNamespace(n_links=1, link_lengths_pu=(1.5, 0.5), probabilities=None, joint_angles_rad=(0.0,))
+        from spare_twin.predict.estimate import Estimate, Prediction
+
+        answer = Estimate(1, (1.5, 0.5), (0.0,))
+        source = {"n_links": "measurement"}
+        return Prediction(answer, source, None, answer, "combined", "profile", None, str(rec_dir), 0.08)
 
     monkeypatch.setattr(batch, "predict_recording", fake_predict)
     real_capture = batch._capture

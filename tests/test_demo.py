@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from spare_twin.compare.demo import ALIGNED_LABEL, REAL_LABEL
-from spare_twin.nets.predict import predict_recording
+from spare_twin.predict.run import predict_recording
 
 
 def test_demo_runs_end_to_end(tmp_path):
@@ -44,12 +44,12 @@ def test_demo_runs_end_to_end(tmp_path):
     # predict_recording gives, nothing from the object folder or the fit), and it is right.
     saved = json.loads((out / "compare.json").read_text())
     alone = predict_recording(out / "real", progress=False).to_json()
-    for key in ("n_links", "link_lengths_m", "probabilities"):
+    for key in ("n_links", "link_lengths_pu", "source", "network", "measurement"):
         assert saved["real"][key] == alone[key], key
     real_row = next(line for line in lines if REAL_LABEL in line)
     assert f"n = {alone['n_links']} " in real_row, (real_row, alone)
     # the diagnostic (cameras re-aligned on the fitted twin) is there, under its own name
-    assert saved["real_twin_aligned"]["n_links"] is not None
+    assert saved["real_twin_aligned"]["n_links"] == 3
     assert any(line.strip().startswith(ALIGNED_LABEL) for line in lines)
     assert "n = 3" in real_row and "count right" in real_row, real_row
     # articulated registration recovers the printed joint angles within 5 degrees

@@ -1,4 +1,4 @@
-"""The chain measured layer by layer (spare_twin.observe.layers): on synthetic plates whose answer is
+"""The chain measured layer by layer (spare_twin.measure.layers): on synthetic plates whose answer is
 known exactly, through noise, a sheared plane and two sides out of register; then on a rendered
 chain, and with a box bigger than the chain beside it (observe.chain.find_chain)."""
 
@@ -9,9 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from spare_twin.observe.chain import find_chain, observe_chain
-from spare_twin.observe.layers import LayersConfig, measure_layers, measure_profile
+from spare_twin.measure.layers import LayersConfig, measure_layers, measure_profile
+from spare_twin.observe.chain import find_chain
 from spare_twin.observe.points import PosedView, object_points
+from spare_twin.observe.views import observe_chain
 
 PITCH_M, HALF_WIDTH_M, SCALE = 0.0064, 0.006, 0.08
 
@@ -154,11 +155,11 @@ def test_a_box_bigger_than_the_chain_is_passed_over(rig_rec):
 
 
 def test_the_measurement_overrules_the_network_where_it_found_a_chain():
-    """`nets.measured`: row 0 measured (4 links), row 1 not (the network's answer stands)."""
+    """`predict.combine`: row 0 measured (4 links), row 1 not (the network's answer stands)."""
     import torch
 
-    from spare_twin.nets.measured import measurement_slots, overrule
-    from spare_twin.observe.layers import LayerMeasurement
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.combine import measurement_slots, overrule
 
     res = {
         "pred_n": torch.tensor([2, 3]),
@@ -183,8 +184,8 @@ def test_a_hidden_last_link_is_the_networks():
     count, its last link; the measured links stay measured. Without those points, the layers' count."""
     import torch
 
-    from spare_twin.nets.measured import measurement_slots, overrule
-    from spare_twin.observe.layers import LayerMeasurement
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.combine import measurement_slots, overrule
 
     probabilities = torch.zeros(2, 6)
     probabilities[:, 4] = 0.9

@@ -43,18 +43,25 @@ def test_predict_json(trained, tmp_path, capsys):
     code, out, err = run_cli(["predict", str(rec), "--model", str(trained / "model.pt"), "--json"], capsys)
     assert code == 0, err
     res = json.loads(out)
-    n = res["n_links"]
-    assert isinstance(n, int) and 1 <= n <= 6
-    assert len(res["link_lengths_m"]) == n + 1 and all(isinstance(v, float) for v in res["link_lengths_m"])
-    assert len(res["probabilities"]) == 6 and abs(sum(res["probabilities"]) - 1) < 1e-5
-    assert res["n_links"] == int(np.argmax(res["probabilities"])) + 1
+    assert res["format"] == "spare-twin-prediction" and res["version"] == 2 and "probabilities" not in res
+    net = res["network"]
+    assert len(net["probabilities"]) == 6 and abs(sum(net["probabilities"]) - 1) < 1e-5
+    # in the training rig the answer is the network's own: its argmax where it is sure enough, else none
+    assert res["input"] == "rig" and res["measurement"] is None
+    k = int(np.argmax(net["probabilities"]))
+    if net["probabilities"][k] >= 0.5:
+        assert res["n_links"] == net["n_links"] == k + 1 and res["source"] == "network"
+        assert len(res["link_lengths_pu"]) == k + 2 and len(res["link_lengths_mm"]) == k + 2
+    else:  # a network trained for 5 epochs on 12 sequences is rarely sure
+        assert res["n_links"] is None and net["n_links"] is None and "too weak" in res["reason"]
+        assert res["link_lengths_pu"] is None and res["source"] is None
 
 
 def test_predict_resizes_views_and_keeps_geometry(trained, tmp_path):
     """A 2x-resolution recording of the same scene gives the same network input geometry."""
     from spare_twin.nets import checkpoint as ckpt
-    from spare_twin.nets.predict import input_spec, to_batch
     from spare_twin.observe.network_input import recording_input
+    from spare_twin.predict.images import input_spec, to_batch
     from spare_twin.recording import Recording
 
     _, net, _ = ckpt.load_model(trained / "model.pt")
@@ -72,9 +79,11 @@ def test_predict_accepts_another_rigs_posed_views(trained, tmp_path, capsys):
     # The voxel net fuses posed views of any rig, so a recording of another rig needs no canonical views.
     assert ckpt.load(trained / "model.pt")["net"]["arch"] == "geo_voxel"
     rec, _ = _write_recording(tmp_path / "rec", rig_name="some-other-rig")
-    code, out, err = run_cli(["predict", str(rec), "--model", str(trained / "model.pt"), "--json"], capsys)
+    argv = ["predict", str(rec), "--model", str(trained / "model.pt"), "--answer", "network", "--json"]
+    code, out, err = run_cli(argv, capsys)
     assert code == 0, err
-    assert 1 <= json.loads(out)["n_links"] <= 6
+    res = json.loads(out)
+    assert res["input"] == "posed" and len(res["network"]["probabilities"]) == 6 and res["measurement"] is None
 
 
 def test_predict_on_a_missing_recording_is_a_one_line_error(trained, tmp_path, capsys):

@@ -9,10 +9,11 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from spare_twin.observe.chain import measured_chain, observe_chain
-from spare_twin.observe.layers import measure_profile
+from spare_twin.measure.chain import measured_chain
+from spare_twin.measure.layers import measure_profile
 from spare_twin.observe.points import PointsConfig, PosedView, merged_cloud, object_points
 from spare_twin.observe.profile import chain_profile
+from spare_twin.observe.views import observe_chain
 from spare_twin.recording import Recording
 
 PRINT_SCALE = 0.08
@@ -216,7 +217,7 @@ def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(han
     object, and counts it right."""
     import types
 
-    from spare_twin.observe import chain
+    from spare_twin.observe import views
 
     rec = Recording.open(handheld_rec)
     cam = rec.cameras[0]
@@ -225,7 +226,7 @@ def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(han
     slips = [_yaw(math.radians(rng.uniform(-2.0, 2.0)), rng.uniform(-0.006, 0.006, 2)) for _ in truth]
     poses = np.stack([S @ T for S, T in zip(slips, truth)])
     monkeypatch.setattr(rec, "camera_poses", lambda name: None)  # as if captured without poses
-    monkeypatch.setattr(chain, "register_frames", lambda frames, *a: types.SimpleNamespace(poses=poses[: len(frames)]))
+    monkeypatch.setattr(views, "register_frames", lambda frames, *a: types.SimpleNamespace(poses=poses[: len(frames)]))
 
     as_registered = observe_chain(rec, PRINT_SCALE)
     assert as_registered.source == "sweep, registered"

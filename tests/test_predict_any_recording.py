@@ -32,9 +32,11 @@ def test_predict_json_has_joint_angles_and_is_the_same_bytes_every_run(hidden_ca
     assert first.returncode == 0, first.stderr[-2000:]
     assert first.stdout == second.stdout  # registration, observation, network and chain fit: deterministic
     res = json.loads(first.stdout)
-    assert res["n_links"] is not None and len(res["joint_angles_rad"]) == res["n_links"]
-    assert len(res["link_lengths_m"]) == res["n_links"] + 1 and len(res["probabilities"]) == 6
-    assert "reason" not in res
+    assert res["format"] == "spare-twin-prediction" and res["version"] == 2
+    assert res["n_links"] == 2 and len(res["joint_angles_rad"]) == 2  # the printed object's count
+    assert len(res["link_lengths_pu"]) == 3 and res["source"] == "measurement" and "reason" not in res
+    assert len(res["network"]["probabilities"]) == 6 and "probabilities" not in res
+    assert res["measurement"]["n_links"] == 2 and res["measurement"]["rms_m"] < 0.002
 
 
 def test_tum_desk_pair_is_no_object(tmp_path, capsys):
@@ -46,7 +48,8 @@ def test_tum_desk_pair_is_no_object(tmp_path, capsys):
     capsys.readouterr()
     assert main(["predict", str(rec), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert res["n_links"] is None and res["link_lengths_m"] is None and res["reason"].startswith("no chain in view")
+    assert res["n_links"] is None and res["link_lengths_pu"] is None and res["reason"].startswith("no chain in view")
+    assert res["network"] is None and res["source"] is None  # nothing to show the network
     assert main(["predict", str(rec)]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert len(out) == 1 and "no chain in view" in out[0]

@@ -15,13 +15,13 @@ from spare_twin.compare.table import sim2real_table, table_markdown, write_table
 
 def _score(truth, pred):
     """`score` of two JSON-like sides, as `compare --json` stores it."""
-    return score(truth["n_links"], truth["link_lengths_m"], pred["n_links"], pred["link_lengths_m"]).to_json()
+    return score(truth["n_links"], truth["link_lengths_pu"], pred["n_links"], pred["link_lengths_pu"]).to_json()
 
 
 def _result(n, sim_n, real_n, angle_err=None):
-    truth = {"n_links": n, "link_lengths_m": [1.5] + [0.5] * n}
-    sim = {"n_links": sim_n, "link_lengths_m": [1.5] + [0.5] * sim_n}
-    real = {"n_links": real_n, "link_lengths_m": [1.4] + [0.5] * real_n}
+    truth = {"n_links": n, "link_lengths_pu": [1.5] + [0.5] * n}
+    sim = {"n_links": sim_n, "link_lengths_pu": [1.5] + [0.5] * sim_n}
+    real = {"n_links": real_n, "link_lengths_pu": [1.4] + [0.5] * real_n}
     return {
         "truth": truth,
         "sim": sim,
@@ -31,14 +31,14 @@ def _result(n, sim_n, real_n, angle_err=None):
 
 
 def test_score_uses_the_end_to_end_rule():
-    truth = {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4]}
-    exact = _score(truth, {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4]})
+    truth = {"n_links": 2, "link_lengths_pu": [1.5, 0.5, 0.4]}
+    exact = _score(truth, {"n_links": 2, "link_lengths_pu": [1.5, 0.5, 0.4]})
     assert exact["count_correct"] and exact["E_L"] == pytest.approx(0.0)
     # One link missing: its squared length is the error; one invented: likewise.
-    assert _score(truth, {"n_links": 1, "link_lengths_m": [1.5, 0.5]})["E_L"] == pytest.approx(0.16)
-    extra = _score(truth, {"n_links": 3, "link_lengths_m": [1.5, 0.5, 0.4, 0.3]})
+    assert _score(truth, {"n_links": 1, "link_lengths_pu": [1.5, 0.5]})["E_L"] == pytest.approx(0.16)
+    extra = _score(truth, {"n_links": 3, "link_lengths_pu": [1.5, 0.5, 0.4, 0.3]})
     assert not extra["count_correct"] and extra["E_L"] == pytest.approx(0.09)
-    assert extra["per_link_m"] == pytest.approx([0, 0, 0, 0.3])
+    assert extra["per_link_pu"] == pytest.approx([0, 0, 0, 0.3])
 
 
 def test_table_per_n_and_overall(tmp_path):
@@ -122,10 +122,12 @@ def test_comparison_rrd_verifies(tmp_path):
 
 
 def _prediction(n, lengths, angles=None, method="posed"):
-    from spare_twin.nets.predict import Prediction
+    from spare_twin.predict.estimate import Estimate, NetworkEvidence, Prediction
 
     probabilities = tuple(0.9 if k == n - 1 else 0.02 for k in range(6))
-    return Prediction(n, tuple(lengths), probabilities, angles, method, (0.0, 90.0), 90.0, "m.pt", "rec")
+    network = Estimate(n, tuple(lengths), angles, NetworkEvidence(probabilities, (0.0, 90.0), 90.0))
+    source = {"n_links": "network", "link_lengths_pu": "network", "joint_angles_rad": "network"}
+    return Prediction(network, source, network, None, "combined", method, "m.pt", "rec", 0.08)
 
 
 def test_comparison_json_is_the_compare_object():
@@ -155,13 +157,15 @@ def test_comparison_json_is_the_compare_object():
         "model",
         "settings",
     ]
-    assert j["truth"] == {"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4], "joint_angles_rad": [0.1, -0.2]}
+    assert j["truth"] == {"n_links": 2, "link_lengths_pu": [1.5, 0.5, 0.4], "joint_angles_rad": [0.1, -0.2]}
     # every side keeps the same keys, null where the model says nothing (here: no joint angles), and
     # passes through how `predict` made its input
     for side in ("sim", "real", "real_twin_aligned"):
         assert list(j[side])[: len(SIDE_KEYS)] == list(SIDE_KEYS)
     assert j["real_twin_aligned"]["joint_angles_rad"] is None
-    assert j["real"]["input"] == "fused" and j["real"]["yaw_deg"] == 90.0 and "reason" not in j["real"]
+    assert j["real"]["input"] == "fused" and j["real"]["network"]["yaw_deg"] == 90.0 and "reason" not in j["real"]
+    assert j["real"]["source"] == "network" and j["real"]["measurement"] is None
+    assert j["real"]["link_lengths_mm"] == pytest.approx([120.0, 40.0, 24.0])  # at the print scale used
     # errors: the real (predict alone) side and the diagnostic under their own keys
     assert j["errors"]["real"] == _score(j["truth"], j["real"]) and j["errors"]["sim"]["E_L"] == 0.0
     assert j["errors"]["real_twin_aligned"] == _score(j["truth"], j["real_twin_aligned"])
@@ -186,8 +190,10 @@ def test_no_count_from_predict_is_reported_not_scored_right():
     from dataclasses import replace
 
     from spare_twin.compare.result import Truth, side_json
+    from spare_twin.predict.estimate import Estimate
 
-    none = replace(_prediction(2, (1.5, 0.5, 0.4)), n_links=None, link_lengths_pu=None)
+    nothing = Estimate.none("no chain in view: nothing there")
+    none = replace(_prediction(2, (1.5, 0.5, 0.4)), answer=nothing, source=None)
     s = Truth(2, (1.5, 0.5, 0.4)).score(none)
     assert not s.count_correct and s.E_L is None
-    assert side_json(none)["n_links"] is None and side_json(none)["link_lengths_m"] is None
+    assert side_json(none)["n_links"] is None and side_json(none)["link_lengths_pu"] is None

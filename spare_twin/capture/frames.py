@@ -142,14 +142,6 @@ def fit_view(img: np.ndarray, K: np.ndarray, height: int, width: int, nearest: b
     return out, K2
 
 
-def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
-    """(N, 3) float64 camera-frame points (OpenCV axes, metres) of the pixels with depth (and `mask`)."""
-    valid = depth_m > 0 if mask is None else mask & (depth_m > 0)
-    v, u = np.nonzero(valid)
-    z = depth_m[v, u].astype(np.float64)
-    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
-
-
 def rotation_error_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 

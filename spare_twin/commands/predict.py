@@ -1,33 +1,46 @@
-"""`spare-twin predict`: count and measure the links in a recording (sim or real)."""
+"""`spare-twin predict`: count and measure the links in a recording (sim or real); the answer says its sources."""
 
 from __future__ import annotations
 
 import json
-import math
 
 
 def register(sub) -> None:
     p = sub.add_parser(
         "predict",
-        help="count the moving links and measure them in a recording",
-        description="Run a network on a recording folder: n_links, link_lengths_m (n + 1 values, base first, "
-        "paper units) and the count-class probabilities.",
+        help="count the moving links and measure them in a recording; the answer says its sources",
+        description="Count and measure the chain in a recording folder. Two estimators run: the layer measurement "
+        "on the object's points (no network) and a network (default: the shipped yaw-free profile network). "
+        "--answer combined (the default) is the measurement where it finds a chain and the network's estimate "
+        "elsewhere (image networks: the network's estimate, no answer where nothing on the table is a chain). "
+        "--json prints version 2 of spare-twin-prediction: n_links, link_lengths_pu (n + 1 values, base first, "
+        "paper units), link_lengths_mm (at the print scale used), joint_angles_rad, source (which estimate gave "
+        "which field), then each estimate with its evidence under network and measurement (null where not run); "
+        "n_links is null, with a reason, where there is no chain in view or the evidence is too weak.",
     )
     p.add_argument("recording", metavar="REC_DIR", help="recording folder (recording.json)")
-    p.add_argument("--model", metavar="CKPT", help="checkpoint (default: the shipped model in models/)")
-    p.add_argument("--frame", type=int, help="time step for multi-view models (default: the middle frame)")
-    p.add_argument("--camera", help="camera for temporal models (default: the first)")
     p.add_argument(
-        "--print-scale", type=float, help="physical metres per paper metre (default: the recording's object, else 0.08)"
+        "--answer",
+        default="combined",
+        choices=("combined", "network", "measurement"),
+        help="which estimate is the answer: combined (default), the network's alone, or the measurement's alone",
     )
-    p.add_argument("--n-links", type=int, help="the known link count, for length-only models")
+    p.add_argument("--model", metavar="CKPT", help="checkpoint (default: models/'s predict model, the profile network)")
+    p.add_argument("--frame", type=int, help="time step of a multi-camera recording (default: the middle frame)")
+    p.add_argument("--camera", help="camera of a one-camera sweep or a temporal model (default: the first)")
+    p.add_argument(
+        "--print-scale",
+        type=float,
+        help="physical metres per paper metre, for paper units and link_lengths_mm (default: 0.08; the recording's "
+        "own object configuration is never read)",
+    )
+    p.add_argument("--n-links", type=int, help="the known link count, for a lengths-only model only")
     p.add_argument(
         "--yaw-hypotheses",
         type=int,
-        default=4,
         choices=(1, 2, 4),
-        help="recordings from other cameras: rotations of the found object frame tried (4: every 90 deg, "
-        "2: +-x, 1: as found); the most confident output wins (default: 4)",
+        help="image networks on recordings from other cameras only: rotations of the found object frame tried "
+        "(4: every 90 deg, 2: +-x, 1: as found); the most confident output wins (default: 4)",
     )
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -36,7 +49,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from spare_twin.commands.common import flags
-    from spare_twin.nets.predict import predict_recording
+    from spare_twin.predict.run import predict_recording
 
     with flags(
         frame="--frame",
@@ -46,6 +59,7 @@ def run(args) -> int:
         yaw_hypotheses="--yaw-hypotheses",
         device="--device",
         model="--model",
+        answer="--answer",
     ):
         res = predict_recording(
             args.recording,
@@ -56,17 +70,15 @@ def run(args) -> int:
             args.n_links,
             args.device,
             yaw_hypotheses=args.yaw_hypotheses,
+            answer=args.answer,
         )
     if args.json:
         print(json.dumps(res.to_json()))
-    elif res.reason is not None:
+    elif res.reason is not None and res.network is None:  # no network ran: the one reason is all there is
         print(f"{args.recording}: {res.reason}")
     else:
-        lengths = "n/a" if res.link_lengths_pu is None else ", ".join(f"{v:.3f}" for v in res.link_lengths_pu)
-        line = f"{res.n_links} moving links; lengths (paper units, base first): {lengths}"
-        if res.joint_angles_rad is not None:
-            line += "; joint angles (deg): " + ", ".join(f"{math.degrees(a):.1f}" for a in res.joint_angles_rad)
-        print(line)
+        for line in res.in_words():
+            print(line)
         if res.timings_s:
             print("seconds: " + ", ".join(f"{k} {v:.2f}" for k, v in res.timings_s.items()))
     return 0

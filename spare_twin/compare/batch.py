@@ -60,10 +60,10 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets.checkpoint import default_model, load_model
 from spare_twin.nets.metrics import length_errors
-from spare_twin.nets.predict import predict_recording
 from spare_twin.object.folder import build_object
 from spare_twin.object.kinematics import base_pose
 from spare_twin.output import check_output, writing
+from spare_twin.predict.run import predict_recording
 from spare_twin.recording import Recording
 from spare_twin.sim.noise import load_noise
 from spare_twin.sim.render import RenderConfig, render_recording
@@ -432,20 +432,13 @@ def bench_markdown(table: dict) -> str:
 
 
 def _prediction_json(pred) -> dict:
-    """What the benchmark keeps of a `Prediction` (fields the lead's predict may add read with getattr)."""
-
-    def floats(v):
-        return None if v is None else [float(x) for x in v]
-
-    timings = getattr(pred, "timings_s", None)
+    """What the benchmark keeps of a `Prediction`: `predict --json`'s answer, source and both
+    estimates (the same keys), and the seconds per step."""
+    out = pred.to_json()
+    keep = ("n_links", "link_lengths_pu", "joint_angles_rad", "source", "reason", "network", "measurement", "input")
     return {
-        "n_links": None if pred.n_links is None else int(pred.n_links),
-        "link_lengths_pu": floats(pred.link_lengths_pu),
-        "probabilities": floats(pred.probabilities),
-        "joint_angles_rad": floats(pred.joint_angles_rad),
-        "reason": getattr(pred, "reason", None),
-        "timings_s": None if timings is None else {str(k): float(v) for k, v in dict(timings).items()},
-        "input": getattr(pred, "input", None),
+        **{k: out.get(k) for k in keep},
+        "timings_s": {str(k): float(v) for k, v in dict(pred.timings_s).items()},
     }
 
 
@@ -589,7 +582,7 @@ def _twin_aligned(d: Path, model: str, truth: dict) -> dict:
     side = cmp.get("real_twin_aligned") or cmp["real"]
     pred = {
         "n_links": side.get("n_links"),
-        "link_lengths_pu": side.get("link_lengths_m"),
+        "link_lengths_pu": side.get("link_lengths_pu"),
         "joint_angles_rad": side.get("joint_angles_rad"),
     }
     return {**pred, "score": score_prediction(truth, pred)}

@@ -28,9 +28,10 @@ from spare_twin.compare.sim_vs_real import compare
 from spare_twin.config import ChainSpec
 from spare_twin.io import write_json_atomic
 from spare_twin.nets.checkpoint import default_model, load_model
-from spare_twin.nets.predict import Prediction, predict_recording
 from spare_twin.object.folder import build_object
 from spare_twin.output import writing
+from spare_twin.predict.estimate import Prediction
+from spare_twin.predict.run import predict_recording
 from spare_twin.sim.render import RenderConfig, render_recording
 
 #: The demo's object: a 3-link chain as the paper's distribution makes them (lengths in range, scaled

@@ -34,10 +34,11 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from spare_twin.capture.frames import backproject, rotation_error_deg
+from spare_twin.capture.frames import rotation_error_deg
 from spare_twin.object.folder import ObjectFolder
 from spare_twin.object.kinematics import base_pose, forward_kinematics, param_bounds
 from spare_twin.object.urdf import load_urdf
+from spare_twin.observe.points import backproject
 
 #: Depth disagreements beyond this count as this much (metres): a hole or a stray reading is one bad pixel.
 DEPTH_TRUNCATE_M = 0.02

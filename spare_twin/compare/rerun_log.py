@@ -82,7 +82,7 @@ def summary_markdown(result: dict) -> str:
     errs = result["errors"]
 
     def lengths(d):
-        return ", ".join(f"{x:.3f}" for x in (d.get("link_lengths_m") or [])) or "-"
+        return ", ".join(f"{x:.3f}" for x in (d.get("link_lengths_pu") or [])) or "-"
 
     def scored(side):
         e = errs.get(side)
@@ -98,6 +98,11 @@ def summary_markdown(result: dict) -> str:
             continue
         tail = " | " if side == "truth" else scored(side)
         lines.append(f"| {label} | {d['n_links']} | {lengths(d)} | {tail} |")
+        for estimator in ("network", "measurement"):  # each estimate beside the answer, as predict gives them
+            e = d.get(estimator)
+            if e is not None:
+                count = e["n_links"] if e["n_links"] is not None else f"none ({e.get('reason')})"
+                lines.append(f"| {label}: {estimator} alone | {count} | {lengths(e)} | | |")
     if (result.get("real") or {}).get("reason"):
         lines += ["", f"real: no count ({result['real']['reason']})"]
     fit = result.get("registration") or {}
@@ -186,7 +191,7 @@ def _log(tmp: Path, log: ComparisonLog, every: int) -> None:
     for offset, (side, colour) in zip((-0.3, -0.1, 0.1, 0.3), BAR_COLOURS.items()):
         if side not in log.result:
             continue
-        values = log.result[side].get("link_lengths_m") or []
+        values = log.result[side].get("link_lengths_pu") or []
         padded = np.zeros(7, np.float32)
         padded[: len(values)] = values
         # Grouped bars: link i's truth, sim and real side by side around x = i.

@@ -12,13 +12,13 @@ import numpy as np
 from spare_twin.compare.articulated import ArticulatedFit
 from spare_twin.config import LABEL_SLOTS
 from spare_twin.nets.metrics import length_errors
-from spare_twin.nets.predict import Prediction
+from spare_twin.predict.estimate import Prediction
 
 #: What each side of a comparison keeps of its prediction (JSON keys, null where the model says nothing)...
-SIDE_KEYS = ("n_links", "link_lengths_m", "probabilities", "joint_angles_rad")
+SIDE_KEYS = ("n_links", "link_lengths_pu", "link_lengths_mm", "joint_angles_rad", "source", "network", "measurement")
 #: ... and what it passes through only where the prediction has it (`reason`: why there is no count;
-#: `input`, `yaw_deg`: how `predict` made the network's input of the recording).
-OPTIONAL_KEYS = ("reason", "input", "yaw_deg")
+#: `input`: how `predict` made the estimators' input of the recording).
+OPTIONAL_KEYS = ("reason", "input")
 #: The sides of a comparison besides the truth: the twin in the same cameras, `predict` on the real
 #: recording alone, and the diagnostic that places the real cameras on the fitted printed twin.
 SIDES = ("sim", "real", "real_twin_aligned")
@@ -39,13 +39,13 @@ class Score:
     E_L: float | None
     """The paper's end-to-end E_L (7 slots, zeros past each count); None without predicted lengths."""
     per_link_pu: tuple[float, ...] | None
-    """Predicted minus true length per slot, up to the longer chain (JSON `per_link_m`)."""
+    """Predicted minus true length per slot, up to the longer chain (JSON `per_link_pu`)."""
 
     def to_json(self) -> dict:
         return {
             "count_correct": self.count_correct,
             "E_L": self.E_L,
-            "per_link_m": None if self.per_link_pu is None else list(self.per_link_pu),
+            "per_link_pu": None if self.per_link_pu is None else list(self.per_link_pu),
         }
 
 
@@ -80,7 +80,7 @@ class Truth:
     def to_json(self) -> dict:
         return {
             "n_links": self.n_links,
-            "link_lengths_m": list(self.link_lengths_pu),
+            "link_lengths_pu": list(self.link_lengths_pu),
             "joint_angles_rad": None if self.joint_angles_rad is None else list(self.joint_angles_rad),
         }
 

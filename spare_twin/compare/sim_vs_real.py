@@ -34,10 +34,10 @@ from spare_twin.compare.result import Comparison, Truth
 from spare_twin.config import COLORS
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
-from spare_twin.nets.predict import predict_recording
 from spare_twin.object.folder import ObjectFolder, load_object
 from spare_twin.object.kinematics import forward_kinematics, link_lengths_m
 from spare_twin.output import RRD, check_output
+from spare_twin.predict.run import predict_recording
 from spare_twin.recording import Camera, Recording, RecordingWriter
 from spare_twin.sim.twin import Twin
 

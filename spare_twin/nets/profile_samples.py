@@ -35,9 +35,9 @@ import torch
 from torch.utils.data import Dataset
 
 from spare_twin.config import MAX_MOVING_LINKS
-from spare_twin.nets.measured import measurement_slots
+from spare_twin.measure.layers import LayerMeasurement, measure_profile
+from spare_twin.measure.slots import measurement_slots
 from spare_twin.observe.chain import find_chain
-from spare_twin.observe.layers import LayerMeasurement, measure_profile
 from spare_twin.observe.points import PosedView
 from spare_twin.observe.profile import ChainProfile
 from spare_twin.sim.noise import load_noise

@@ -13,7 +13,7 @@ each point's normal from its own depth image, a Huber loss), the three motions o
 solved at once from the same matches, their mean is taken out (the views as a whole stay where they
 were), and the rounds repeat with shrinking match distances. Clutter helps: it stands still too.
 
-`observe.chain.measured_chain` measures every sweep it registered itself this way. Only surfaces
+`spare_twin.measure.chain.measure_views` measures every sweep it registered itself this way. Only surfaces
 that face the same way are matched: without that test a plate's front face was matched to its back
 face seen from the other side of the sweep, views already in register drifted 2.5 mm apart, and 3 of
 36 hidden-pose development captures lost their count. With it, on the 48 hidden-pose development

@@ -27,8 +27,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
-from spare_twin.capture.frames import backproject
-
 
 @dataclass(frozen=True)
 class PosedView:
@@ -94,6 +92,14 @@ class ObjectPoints:
     """float64 (N, 3) table frame: per point, the mean surface normal of its readings, each taken in
     its own depth image (so registration error between views does not blur it), facing the camera;
     zero where no reading had a surface around it."""
+
+
+def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+    """(N, 3) float64 camera-frame points (OpenCV axes, metres) of the pixels with depth (and `mask`)."""
+    valid = depth_m > 0 if mask is None else mask & (depth_m > 0)
+    v, u = np.nonzero(valid)
+    z = depth_m[v, u].astype(np.float64)
+    return np.stack([(u - K[0, 2]) / K[0, 0] * z, (v - K[1, 2]) / K[1, 1] * z, z], axis=1)
 
 
 def rigid(T: np.ndarray, p: np.ndarray) -> np.ndarray:

@@ -1,0 +1,117 @@
+"""Any recording as posed depth views: what the observation, the measurement and `predict` read.
+
+`recording_views` reduces a recording folder to `PosedViews` in memory, whatever made it:
+
+- several cameras with poses (a rig, fixed or not): every camera at one frame (default the middle one),
+  because the object may move between frames;
+- one camera (a hand-held sweep round a still object): up to `max_frames` of its frames, spread over
+  the sweep; its poses from the recording where it has them (a tracked camera, a registered copy),
+  otherwise registered here (`capture.registration.register_frames`), in memory: predict never
+  writes into the user's recording.
+
+A live stream or a dataset builds `PosedViews` itself and goes through the same code from there on.
+Nothing here reads the recording's object configuration or ground truth.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from spare_twin.capture.frames import RGBDFrame, load_frames
+from spare_twin.capture.registration import RegistrationConfig, register_frames
+from spare_twin.errors import SpareTwinError
+from spare_twin.observe.chain import ChainObservation, observe_views
+from spare_twin.observe.points import PointsConfig, PosedView
+from spare_twin.observe.profile import ProfileConfig
+from spare_twin.recording import Recording
+
+#: `PosedViews.source` of a sweep whose poses were registered here.
+REGISTERED_SWEEP = "sweep, registered"
+
+
+@dataclass(frozen=True)
+class PosedViews:
+    """Depth views with camera-to-world poses, in memory: the input of `predict`'s core."""
+
+    views: tuple[PosedView, ...]
+    source: str
+    """"cameras" (every posed camera at one frame), "sweep" (one camera's posed frames) or
+    `REGISTERED_SWEEP` (one camera's frames, poses estimated here)."""
+    registration_s: float = 0.0
+    """Seconds spent estimating the poses."""
+    frames: tuple[RGBDFrame, ...] | None = None
+    """A sweep registered here: its frames as read, so that a part of it can be registered again
+    on its own (`sweep_part`)."""
+    frames_in_recording: int | None = None
+    """How many frames the source has (a sweep's views are a sample of them)."""
+
+
+def _registered(frames: list[RGBDFrame], progress: bool) -> tuple[list[PosedView], float]:
+    t0 = time.perf_counter()
+    poses = register_frames(frames, RegistrationConfig(), None, progress).poses
+    views = [
+        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, P, fr.color)
+        for fr, P in zip(frames, poses)
+    ]
+    return views, time.perf_counter() - t0
+
+
+def recording_views(
+    rec: Recording,
+    frame: int | None = None,
+    camera: str | None = None,
+    max_frames: int = 60,
+    progress: bool = False,
+) -> PosedViews:
+    """The posed views of a recording; see the module doc."""
+    if frame is not None and not 0 <= frame < rec.n_frames:
+        raise SpareTwinError(f"frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
+    posed = [c for c in rec.cameras if rec.camera_poses(c.name) is not None]
+    if len(rec.cameras) > 1 and camera is None:
+        if len(posed) < len(rec.cameras):
+            raise SpareTwinError(f"{rec.root}: {len(rec.cameras) - len(posed)} of its cameras have no poses")
+        f = rec.n_frames // 2 if frame is None else frame
+        views = [
+            PosedView(rec.depth_m(c.name, f), c.K, rec.T_world_camera(c.name, f), rec.color(c.name, f)) for c in posed
+        ]
+        return PosedViews(tuple(views), "cameras", frames_in_recording=rec.n_frames)
+    cam = rec.camera(camera or rec.cameras[0].name)
+    picks = np.unique(np.linspace(0, rec.n_frames - 1, min(max_frames, rec.n_frames)).round().astype(int)).tolist()
+    poses = rec.camera_poses(cam.name)
+    if poses is None:
+        if len(picks) < 2:
+            raise SpareTwinError(f"{rec.root}: one frame and no camera pose; nothing to register")
+        frames = load_frames(rec, cam.name, picks)
+        views, seconds = _registered(frames, progress)
+        return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
+    views = [PosedView(rec.depth_m(cam.name, f), cam.K, poses[f], rec.color(cam.name, f)) for f in picks]
+    return PosedViews(tuple(views), "sweep", frames_in_recording=rec.n_frames)
+
+
+def sweep_part(seen: PosedViews, part: tuple[float, float], progress: bool = False) -> PosedViews:
+    """A share of a registered sweep's frames (start, stop), e.g. (0.5, 1.0) its second half,
+    registered on its own."""
+    if seen.frames is None:
+        raise ValueError("sweep_part: only a sweep registered here has its frames")
+    n = len(seen.frames)
+    start = int(part[0] * n)
+    frames = list(seen.frames[start : max(int(np.ceil(part[1] * n)), start + 1)])
+    views, seconds = _registered(frames, progress)
+    return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), seen.frames_in_recording)
+
+
+def observe_chain(
+    rec: Recording,
+    print_scale: float,
+    frame: int | None = None,
+    camera: str | None = None,
+    points_cfg: PointsConfig = PointsConfig(),
+    profile_cfg: ProfileConfig = ProfileConfig(),
+    progress: bool = False,
+) -> ChainObservation:
+    """The chain's observation in a recording folder: `recording_views`, then `observe_views`."""
+    seen = recording_views(rec, frame, camera, progress=progress)
+    return observe_views(list(seen.views), seen.source, seen.registration_s, print_scale, points_cfg, profile_cfg)

@@ -1,0 +1,199 @@
+"""`spare-twin predict`: the measurement and a network on any recording (sim or real), one answer
+that says its sources.
+
+`predict_views` is the core: posed views in memory (a recording folder's, a live stream's, a
+dataset's) -> the chain's observation (`observe.chain`) -> the layer measurement (`measure`) and the
+yaw-free profile network -> the answer (`predict.combine`), each estimate held to what it can answer
+(`predict.abstain`). `predict_recording` reads a folder into views and calls it; the image networks
+(multi-view and temporal, trained on the rig's images) read the recording itself (`predict.images`).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin.config import MAX_MOVING_LINKS, MIN_MOVING_LINKS
+from spare_twin.errors import SpareTwinError
+from spare_twin.measure.chain import measure_views
+from spare_twin.measure.layers import LayerMeasurement
+from spare_twin.nets import checkpoint as ckpt
+from spare_twin.nets.models import decode
+from spare_twin.observe.chain import ChainObservation
+from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
+from spare_twin.observe.views import PosedViews, recording_views
+from spare_twin.predict.abstain import hold_network, measurement_estimate, network_estimate
+from spare_twin.predict.combine import combined
+from spare_twin.predict.estimate import ANSWERS, FIELDS, Estimate, Prediction
+from spare_twin.predict.images import predict_images
+from spare_twin.recording import Recording
+
+
+def _is_int(v) -> bool:
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
+
+
+def check_options(
+    frame: int | None = None,
+    print_scale: float | None = None,
+    n_links: int | None = None,
+    yaw_hypotheses: int | None = None,
+    device: str = "cpu",
+    answer: str = "combined",
+) -> None:
+    """`predict_recording`'s options are usable; else an error naming the parameter. Checked before the
+    model and the recording are read, so a typo costs no registration."""
+    import torch
+
+    if frame is not None and (not _is_int(frame) or frame < 0):
+        raise SpareTwinError(f"frame {frame!r}: must be a frame index, 0 or more")
+    if print_scale is not None and (
+        isinstance(print_scale, bool)
+        or not isinstance(print_scale, (int, float))
+        or not math.isfinite(print_scale)
+        or print_scale <= 0
+    ):
+        raise SpareTwinError(f"print_scale {print_scale!r}: must be a positive number (physical m per paper m)")
+    if n_links is not None and (not _is_int(n_links) or not MIN_MOVING_LINKS <= n_links <= MAX_MOVING_LINKS):
+        raise SpareTwinError(f"n_links {n_links!r}: must be {MIN_MOVING_LINKS}..{MAX_MOVING_LINKS} moving links")
+    if yaw_hypotheses is not None and (yaw_hypotheses not in (1, 2, 4) or isinstance(yaw_hypotheses, bool)):
+        raise SpareTwinError(f"yaw_hypotheses {yaw_hypotheses!r}: must be 1, 2 or 4")
+    if device not in ("cpu", "cuda"):
+        raise SpareTwinError(f"device {device!r}: must be cpu or cuda")
+    if device == "cuda" and not torch.cuda.is_available():
+        raise SpareTwinError("device cuda: no CUDA device is available here; use cpu")
+    if answer not in ANSWERS:
+        raise SpareTwinError(f"answer {answer!r}: must be one of {', '.join(ANSWERS)}")
+
+
+def _refuse(value, name: str, why: str) -> None:
+    if value is not None:
+        raise SpareTwinError(f"{name}: {why}")
+
+
+def predict_recording(
+    rec_dir: str | Path,
+    model_path: str | Path | None = None,
+    frame: int | None = None,
+    camera: str | None = None,
+    print_scale: float | None = None,
+    n_links: int | None = None,
+    device: str = "cpu",
+    progress: bool = True,
+    yaw_hypotheses: int | None = None,
+    T_world_base: np.ndarray | None = None,
+    camera_poses: dict | None = None,
+    answer: str = "combined",
+) -> Prediction:
+    """`predict`'s answer for a recording folder. The profile model (the default) and the measurement
+    read the recording's posed views (`observe.views.recording_views`: `frame` for a rig, `camera` for
+    a sweep) through `predict_views`; image networks read the recording itself (`predict.images`:
+    `yaw_hypotheses`, `T_world_base`, `camera_poses`; `n_links` for a lengths-only model). Options
+    that do not apply to the model or answer chosen are refused, but for `T_world_base` and
+    `camera_poses` (`compare`'s twin-aligned diagnostic), which only posed image networks read: the
+    profile path finds the chain's base on the table itself. The print scale is `print_scale` or the
+    default: the recording's own object configuration is never read."""
+    check_options(frame, print_scale, n_links, yaw_hypotheses, device, answer)
+    scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
+    if answer == "measurement":
+        _refuse(model_path, "model", "--answer measurement runs no network")
+    net = model = None
+    if answer != "measurement":
+        model_path = model_path or ckpt.default_model("predict")
+        model, net, ck = ckpt.load_model(model_path, device)
+    if net is None or net.arch == "profile":
+        why = "applies to image networks only (the profile network and the measurement have no yaw to guess)"
+        _refuse(yaw_hypotheses, "yaw_hypotheses", why)
+        _refuse(n_links, "n_links", "applies to lengths-only models only; this answer counts the links itself")
+        rec = Recording.open(rec_dir)
+        seen = recording_views(rec, frame, camera, progress=progress)
+        return predict_views(seen, model, net, str(model_path) if model_path else None, answer, scale, device, rec_dir)
+    if net.arch != "conv3d_per_n":
+        _refuse(n_links, "n_links", f"applies to lengths-only models only; {Path(model_path).name} counts the links")
+    return predict_images(
+        rec_dir,
+        model,
+        net,
+        ck,
+        str(model_path),
+        answer,
+        frame,
+        camera,
+        scale,
+        n_links,
+        device,
+        progress,
+        yaw_hypotheses or 4,
+        T_world_base,
+        camera_poses,
+    )
+
+
+def predict_views(
+    seen: PosedViews,
+    model=None,
+    net=None,
+    model_name: str | None = None,
+    answer: str = "combined",
+    print_scale: float = DEFAULT_PRINT_SCALE,
+    device: str = "cpu",
+    recording: str | Path = "",
+    progress: bool = False,
+) -> Prediction:
+    """The core: posed views in memory -> the chain observed and measured (`measure.chain.measure_views`)
+    -> the yaw-free profile network (`model`, `net`: a loaded profile checkpoint; None with
+    `answer="measurement"`) -> the answer `answer` asks for, with both estimates and their sources."""
+    obs, m = measure_views(seen, print_scale, progress)
+    return answer_of(obs, m, model, net, model_name, answer, print_scale, device, recording)
+
+
+def answer_of(
+    obs: ChainObservation,
+    m: LayerMeasurement,
+    model,
+    net,
+    model_name: str | None,
+    answer: str,
+    print_scale: float,
+    device: str = "cpu",
+    recording: str | Path = "",
+) -> Prediction:
+    """The prediction of an observation and its measurement: the profile network run on the
+    observation where `answer` asks for it, the estimates held to what they can answer, combined."""
+    import torch
+
+    common = dict(
+        answer_kind=answer,
+        input=f"profile ({obs.source}, {obs.views} views)",
+        model=model_name,
+        recording=str(recording),
+        print_scale=print_scale,
+        network_input=obs.profile.image,
+        T_world_profile=obs.T_world_profile,
+    )
+    measurement = measurement_estimate(obs, m) if answer != "network" else None
+    if obs.reason is not None:  # nothing to show the network: the answer is no answer, whichever was asked
+        none = Estimate.none(f"no chain in view: {obs.reason}")
+        timings = {**obs.timings_s, "network": 0.0}
+        return Prediction(none, None, None, measurement, timings_s=timings, **common)
+    network, res = None, None
+    t0 = time.perf_counter()
+    if answer != "measurement":
+        with torch.no_grad():
+            res = decode(model, net, {"x": torch.from_numpy(obs.profile.image[None]).to(device)})
+        network = hold_network(network_estimate(res, 0, net), obs, m)
+    timings = {**obs.timings_s, "network": round(time.perf_counter() - t0, 4)}
+    if answer == "network":
+        chosen, source = network, _all(network, "network")
+    elif answer == "measurement":
+        chosen, source = measurement, _all(measurement, "measurement")
+    else:
+        chosen, source = combined(res, m, network, measurement)
+    return Prediction(chosen, source, network, measurement, timings_s=timings, **common)
+
+
+def _all(e: Estimate, name: str) -> dict | None:
+    return None if e.n_links is None else {f: name for f in FIELDS}
