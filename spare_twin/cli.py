@@ -84,7 +84,9 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help(sys.stderr)
         return 2
-    problem = environment_problem()
+    # an empty output path would become Path("") == "." (the current folder) further on: say what it is
+    empty = next((flag for flag in ("out", "rrd") if getattr(args, flag, None) == ""), None)
+    problem = f"--{empty} '': an output path cannot be empty" if empty else environment_problem()
     if problem:
         _say(f"spare-twin {args.command}: error: {problem}")
         return 1

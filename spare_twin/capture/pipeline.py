@@ -1,6 +1,7 @@
 """Register a recording end to end: poses, TSDF fusion, the object; results written atomically.
 
-What `register_recording` writes into the recording folder (one atomic `update_recording`):
+What `register_recording` writes into the recording folder (one atomic `update_recording`, which keeps
+everything else in the folder as it was):
 
 - ``cameras/<cam>/T_world_camera.npy``: the registered camera-to-world poses (camera ``poses`` becomes
   ``"per_frame"``); poses that were there before the first registration (an importer's reference
@@ -28,6 +29,7 @@ from spare_twin.capture.registration import RegistrationConfig, register_frames
 from spare_twin.capture.segment import SegmentConfig, find_object
 from spare_twin.errors import SpareTwinError
 from spare_twin.recording import REFERENCE_POSES, Recording, Registration, npy_bytes, update_recording
+from spare_twin.recording.writer import check_updatable
 
 FIND = ("auto", "require", "skip")
 
@@ -87,6 +89,8 @@ def register_recording(
         raise SpareTwinError(f"{rec.root}: has 1 frame; registration needs at least 2 frames of the scene")
     cam = camera or rec.cameras[0].name
     rec.camera(cam)
+    # refused now, not after the registration: the results go into the folder
+    check_updatable(rec.root, writes=[f"cameras/{cam}/T_world_camera.npy"])
     # the poses it came with, not those of an earlier registration: registering again gives the same result
     ref = rec.reference_poses(cam)
     use_ref = bool(use_reference and ref is not None)

@@ -25,17 +25,12 @@ from pathlib import Path
 from spare_twin.dataset.backends import BACKENDS, check_workers, run_local
 from spare_twin.dataset.generate import SPLITS, GenConfig, _seeds, sequence_spec, split_of
 from spare_twin.dataset.ray_backend import SHARDS, RaySession, run_ray
-from spare_twin.dataset.store import sequence_filename, shard_problem
+from spare_twin.dataset.store import sequence_filename
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import read_json, write_json_atomic
-from spare_twin.output import OutputRefused, process_alive, writing
-from spare_twin.validate import cap_workers, check_count, check_fits_memory, usable_cores
+from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
+from spare_twin.output import OutputRefused, process_token, token_alive, token_pid, writing
 
 DATASET_FORMAT = "spare-twin-dataset/1"
-#: Most sequences in a dataset: the files are numbered with 6 digits (the paper's dataset has 324).
-MAX_INSTANCES = 999_999
-#: Most frames in a sequence (the paper's have 100).
-MAX_SEQUENCE_FRAMES = 10_000
 
 
 @dataclass(frozen=True)
@@ -52,26 +47,37 @@ PRESETS = {"paper": Preset(instances=324), "small": Preset(instances=36), "tiny"
 
 
 # -- driver side -----------------------------------------------------------------------------
-def _lock_pid(path: Path) -> int | None:
-    """The pid a `_Lock` file holds; None where the path is no such file (absent, or the user's)."""
-    if not path.is_file():
+def _lock_owner(path: Path) -> str | None:
+    """The process token (`spare_twin.output.process_token`; an older lock's bare pid) a `_Lock` file
+    holds; None where the path is no such file (absent, or the user's)."""
+    if not path.is_file() or path.is_symlink():
         return None
-    text = path.read_text().strip()
-    return int(text) if text.isdigit() else None
+    try:
+        text = path.read_text(errors="replace").strip()
+    except OSError:
+        return None
+    return text if token_pid(text) is not None else None
 
 
 class _Lock:
-    """DATA_DIR/.lock holding the writer's pid; a lock whose process is gone (killed) is taken over."""
+    """DATA_DIR/.lock holding the writer's process token; a lock whose process is gone (killed, or a
+    reboot since: its pid may now be another process's) is taken over."""
 
     def __init__(self, root: Path):
         self.path = root / ".lock"
 
     def __enter__(self):
-        if self.path.exists():
-            pid = _lock_pid(self.path)
-            if pid and pid != os.getpid() and process_alive(pid):
-                raise SpareTwinError(f"{self.path.parent}: another spare-twin dataset (pid {pid}) is writing it")
-        self.path.write_text(str(os.getpid()))
+        owner = _lock_owner(self.path)
+        if owner is None and os.path.lexists(self.path):  # taking it over would overwrite it, then delete it
+            raise SpareTwinError(f"{self.path}: not a spare-twin lock (a file of yours?); move it out of the folder")
+        written_s = None
+        with contextlib.suppress(OSError):
+            written_s = self.path.stat().st_mtime
+        if owner and owner != process_token() and token_alive(owner, written_s):
+            raise SpareTwinError(
+                f"{self.path.parent}: another spare-twin dataset (pid {token_pid(owner)}) is writing it"
+            )
+        write_bytes_atomic(self.path, process_token().encode())
         return self
 
     def __exit__(self, *exc):
@@ -80,13 +86,13 @@ class _Lock:
 
 def _ours_or_empty(root: Path) -> bool:
     """The folder is a dataset, empty, or holds only the lock of a run killed before it wrote its
-    dataset.json (a file named .lock holding a pid): those resume; anything else is the user's."""
+    dataset.json (a file named .lock holding a process token): those resume; anything else is the user's."""
     if (root / "dataset.json").exists():
         return True
     entries = list(root.iterdir())
     if not entries:
         return True
-    return [p.name for p in entries] == [".lock"] and _lock_pid(entries[0]) is not None
+    return [p.name for p in entries] == [".lock"] and _lock_owner(entries[0]) is not None
 
 
 def _check_settings(root: Path, seed: int, cfg: GenConfig, create: bool = True) -> None:
@@ -127,7 +133,7 @@ def build_manifest(root: Path, instances: int) -> dict:
     images_per_seq = cfg.rig.n_cameras * cfg.frames
     for i in range(instances):
         f = seq_dir / sequence_filename(i)
-        if not _shard_ok(seq_dir, i, cfg):
+        if not f.is_file():
             continue
         spec = sequence_spec(seed, i)
         rows.append(
@@ -189,15 +195,11 @@ def generate_dataset(
     root = Path(root)
     if backend not in BACKENDS:
         raise SpareTwinError(f"backend {backend!r}: choose {' or '.join(BACKENDS)}")
-    check_workers(workers)
-    check_count("instances", instances, MAX_INSTANCES, "sequence files are numbered with 6 digits")
-    check_count("frames", cfg.frames, MAX_SEQUENCE_FRAMES, "the paper's sequences have 100")
-    rig = cfg.rig
-    # a worker holds its whole sequence in memory: depth (2 bytes), grey and labels (1 each) per pixel
-    at_once = min(workers or 1, usable_cores()) if backend == "local" else 1
-    check_fits_memory("frames", cfg.frames, rig.n_cameras * rig.height * rig.width * 4, copies=at_once)
+    if isinstance(instances, bool) or not isinstance(instances, int) or instances < 1:
+        raise SpareTwinError(f"instances {instances}: must be at least 1")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SpareTwinError(f"seed {seed}: must be a whole number, 0 or more")
+    check_workers(workers)
     if ray_address is not None and backend != "ray":
         raise SpareTwinError("ray_address: only with backend ray")
     if shards not in SHARDS:
@@ -222,7 +224,7 @@ def generate_dataset(
     seq_dir = root / "sequences"
     t0 = time.perf_counter()
     # Ray first: a cluster that cannot be reached leaves no folder behind
-    ray = backend == "ray" and bool(_missing(seq_dir, instances, cfg))
+    ray = backend == "ray" and bool(_missing(seq_dir, instances))
     with RaySession(ray_address, workers) if ray else contextlib.nullcontext() as session:
         try:
             root.mkdir(parents=True, exist_ok=True)
@@ -246,20 +248,8 @@ def generate_dataset(
     }
 
 
-def _shard_ok(seq_dir: Path, index: int, cfg: GenConfig, say: bool = False) -> bool:
-    """Sequence `index`'s file exists and reads back (a truncated or garbled one does not count as done)."""
-    path = seq_dir / sequence_filename(index)
-    if not path.is_file():
-        return False
-    rig = cfg.rig
-    problem = shard_problem(path, index, rig.n_cameras, cfg.frames, rig.height, rig.width, cfg.segmentation)
-    if problem and say:
-        print(f"note: {path}: does not read back ({problem}); rendering it again", file=sys.stderr)
-    return problem is None
-
-
-def _missing(seq_dir: Path, instances: int, cfg: GenConfig, say: bool = False) -> list[int]:
-    return [i for i in range(instances) if not _shard_ok(seq_dir, i, cfg, say)]
+def _missing(seq_dir: Path, instances: int) -> list[int]:
+    return [i for i in range(instances) if not (seq_dir / sequence_filename(i)).is_file()]
 
 
 def _generate(root: Path, instances, seed, workers, cfg: GenConfig, progress, backend, shards):
@@ -273,9 +263,7 @@ def _generate(root: Path, instances, seed, workers, cfg: GenConfig, progress, ba
         seq_dir.mkdir(exist_ok=True)
         for stale in seq_dir.glob(".seq-*.tmp*"):  # left by a killed run
             stale.unlink(missing_ok=True)
-        todo = _missing(seq_dir, instances, cfg, say=True)
-        if backend == "local":  # more processes than cores or than sequences only cost memory and start-up
-            workers = cap_workers(workers or 1, max(1, len(todo)))
+        todo = _missing(seq_dir, instances)
         bar = tqdm(
             total=len(todo),
             unit="seq",

@@ -5,14 +5,13 @@ poses).
 Both go through the one output rule (`spare_twin.output.writing`): the new folder is built under a
 hidden temporary sibling and swapped into place when complete, so a failure, Ctrl-C or SIGKILL at any
 point leaves what was at the destination exactly as it was (a killed run's temporary is removed by the
-next run). A new recording refuses to replace anything but an earlier output of the same command.
+next run). A new recording refuses to replace anything but an earlier output of the same command, and
+keeps what the user added to that one; an update keeps everything it does not update.
 """
 
 from __future__ import annotations
 
 import json
-import os
-import shutil
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import numpy as np
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import encode_png, write_bytes_atomic
-from spare_twin.output import output_command, writing
+from spare_twin.output import check_output, output_command, writing
 from spare_twin.recording.format import (
     FORMAT,
     SIM_DEPTH_SCALE,
@@ -193,34 +192,47 @@ class RecordingWriter:
         Recording.open(self._tmp).validate()
 
 
-def _link_tree(src: Path, dst: Path, skip: set[str]) -> None:
-    for dirpath, _dirnames, filenames in os.walk(src):
-        rel = Path(dirpath).relative_to(src)
-        (dst / rel).mkdir(parents=True, exist_ok=True)
-        for name in filenames:
-            relf = (rel / name).as_posix()
-            if relf in skip or name.startswith("."):
-                continue
-            try:
-                os.link(Path(dirpath) / name, dst / rel / name)
-            except OSError:  # another file system, or links not allowed: copy instead
-                shutil.copy2(Path(dirpath) / name, dst / rel / name)
+def check_updatable(root: str | Path, writes: Iterable[str] = ()) -> Path:
+    """`root` as `update_recording` would take it, writing the files `writes` (relative paths), or a
+    one-line error naming it: for a command to call before its work."""
+    final = check_output(root, output_command(root) or "recording", force=True, in_place=True)
+    for rel in writes:
+        _refuse_linked_folders(Path(root), Path(root), rel)
+    return final
+
+
+def _refuse_linked_folders(root: Path, copy: Path, rel: str) -> None:
+    """Writing `rel` through a link to a folder would change that folder, outside the recording and in
+    place: refused, naming the user's path (`copy`: the recording or its temporary copy)."""
+    for up in reversed(Path(rel).parents[:-1]):
+        if (copy / up).is_symlink():
+            raise SpareTwinError(
+                f"{root / up}: is a symbolic link, and the update writes {rel} inside it, which would change "
+                "the folder it points to; make it a real folder"
+            )
 
 
 def update_recording(root: str | Path, meta: dict, files: dict[str, bytes], remove: tuple[str, ...] = ()) -> Recording:
     """Replace `recording.json` by `meta` and write `files` (relative path -> bytes), all at once.
 
-    Files not named keep their content: the new folder hard-links them, so the pictures are not
-    copied. Those in `remove` are left out. The result is opened and validated before it replaces the
-    old folder.
+    Everything else in the folder stays as it was (`spare_twin.output.writing` with `in_place`: hard
+    links, hidden files, links kept as links, empty folders); those in `remove` are left out. The result
+    is opened and validated before it replaces the old folder.
     """
     root = Path(root)
     Recording.open(root)  # a clear error if it is not a recording at all
+    check_updatable(root)
     # the same command's output again (its marker kept), so the swap keeps what produced it
-    with writing(root, output_command(root) or "recording", force=True) as tmp:
-        _link_tree(root, tmp, skip={"recording.json", *files, *remove})
+    with writing(root, output_command(root) or "recording", force=True, in_place=True) as tmp:
+        for rel in (*files, *remove):
+            _refuse_linked_folders(root, tmp, rel)
+        for rel in remove:
+            (tmp / rel).unlink(missing_ok=True)
         for rel, data in files.items():
             write_bytes_atomic(tmp / rel, data)
         write_bytes_atomic(tmp / "recording.json", _json_bytes(meta))
-        Recording.open(tmp).validate()
+        try:
+            Recording.open(tmp).validate()
+        except SpareTwinError as exc:  # about the folder the user named, not the temporary
+            raise SpareTwinError(str(exc).replace(str(tmp), str(root))) from None
     return Recording.open(root)
