@@ -25,12 +25,17 @@ from pathlib import Path
 from spare_twin.dataset.backends import BACKENDS, check_workers, run_local
 from spare_twin.dataset.generate import SPLITS, GenConfig, _seeds, sequence_spec, split_of
 from spare_twin.dataset.ray_backend import SHARDS, RaySession, run_ray
-from spare_twin.dataset.store import sequence_filename
+from spare_twin.dataset.store import sequence_filename, shard_problem
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.output import OutputRefused, process_token, token_alive, token_pid, writing
+from spare_twin.validate import cap_workers, check_count, check_fits_memory, usable_cores
 
 DATASET_FORMAT = "spare-twin-dataset/1"
+#: Most sequences in a dataset: the files are numbered with 6 digits (the paper's dataset has 324).
+MAX_INSTANCES = 999_999
+#: Most frames in a sequence (the paper's have 100).
+MAX_SEQUENCE_FRAMES = 10_000
 
 
 @dataclass(frozen=True)
@@ -133,7 +138,7 @@ def build_manifest(root: Path, instances: int) -> dict:
     images_per_seq = cfg.rig.n_cameras * cfg.frames
     for i in range(instances):
         f = seq_dir / sequence_filename(i)
-        if not f.is_file():
+        if not _shard_ok(seq_dir, i, cfg):
             continue
         spec = sequence_spec(seed, i)
         rows.append(
@@ -195,11 +200,15 @@ def generate_dataset(
     root = Path(root)
     if backend not in BACKENDS:
         raise SpareTwinError(f"backend {backend!r}: choose {' or '.join(BACKENDS)}")
-    if isinstance(instances, bool) or not isinstance(instances, int) or instances < 1:
-        raise SpareTwinError(f"instances {instances}: must be at least 1")
+    check_workers(workers)
+    check_count("instances", instances, MAX_INSTANCES, "sequence files are numbered with 6 digits")
+    check_count("frames", cfg.frames, MAX_SEQUENCE_FRAMES, "the paper's sequences have 100")
+    rig = cfg.rig
+    # a worker holds its whole sequence in memory: depth (2 bytes), grey and labels (1 each) per pixel
+    at_once = min(workers or 1, usable_cores()) if backend == "local" else 1
+    check_fits_memory("frames", cfg.frames, rig.n_cameras * rig.height * rig.width * 4, copies=at_once)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise SpareTwinError(f"seed {seed}: must be a whole number, 0 or more")
-    check_workers(workers)
     if ray_address is not None and backend != "ray":
         raise SpareTwinError("ray_address: only with backend ray")
     if shards not in SHARDS:
@@ -224,7 +233,7 @@ def generate_dataset(
     seq_dir = root / "sequences"
     t0 = time.perf_counter()
     # Ray first: a cluster that cannot be reached leaves no folder behind
-    ray = backend == "ray" and bool(_missing(seq_dir, instances))
+    ray = backend == "ray" and bool(_missing(seq_dir, instances, cfg))
     with RaySession(ray_address, workers) if ray else contextlib.nullcontext() as session:
         try:
             root.mkdir(parents=True, exist_ok=True)
@@ -248,8 +257,20 @@ def generate_dataset(
     }
 
 
-def _missing(seq_dir: Path, instances: int) -> list[int]:
-    return [i for i in range(instances) if not (seq_dir / sequence_filename(i)).is_file()]
+def _shard_ok(seq_dir: Path, index: int, cfg: GenConfig, say: bool = False) -> bool:
+    """Sequence `index`'s file exists and reads back (a truncated or garbled one does not count as done)."""
+    path = seq_dir / sequence_filename(index)
+    if not path.is_file():
+        return False
+    rig = cfg.rig
+    problem = shard_problem(path, index, rig.n_cameras, cfg.frames, rig.height, rig.width, cfg.segmentation)
+    if problem and say:
+        print(f"note: {path}: does not read back ({problem}); rendering it again", file=sys.stderr)
+    return problem is None
+
+
+def _missing(seq_dir: Path, instances: int, cfg: GenConfig, say: bool = False) -> list[int]:
+    return [i for i in range(instances) if not _shard_ok(seq_dir, i, cfg, say)]
 
 
 def _generate(root: Path, instances, seed, workers, cfg: GenConfig, progress, backend, shards):
@@ -263,7 +284,9 @@ def _generate(root: Path, instances, seed, workers, cfg: GenConfig, progress, ba
         seq_dir.mkdir(exist_ok=True)
         for stale in seq_dir.glob(".seq-*.tmp*"):  # left by a killed run
             stale.unlink(missing_ok=True)
-        todo = _missing(seq_dir, instances)
+        todo = _missing(seq_dir, instances, cfg, say=True)
+        if backend == "local":  # more processes than cores or than sequences only cost memory and start-up
+            workers = cap_workers(workers or 1, max(1, len(todo)))
         bar = tqdm(
             total=len(todo),
             unit="seq",
