@@ -22,6 +22,7 @@ from spare_twin.capture.importers import ImportOptions, import_folder
 from spare_twin.capture.pipeline import register_recording
 from spare_twin.capture.registration import RegistrationConfig
 from spare_twin.recording import Recording
+from spare_twin.sim.effects import NO_EFFECTS, CaptureEffects
 from spare_twin.sim.render import RenderConfig, render_recording
 
 #: The ground-truth arrays of the simulation that describe the object, not the sensor's path.
@@ -42,6 +43,11 @@ class SensorCaptureConfig:
     """Loop edges for registration: enough to close the drift of a 40-frame sweep, few enough to be quick."""
     seed: int = 0
     """The hand-held path and the sensor noise."""
+    effects: CaptureEffects = NO_EFFECTS
+    """What a real print and a real sensor add (`spare_twin.sim.effects`; `parse_effects("all")` for
+    every one); none by default, the capture the project was developed on."""
+    renderer: str = "pybullet"
+    """pybullet or raycast (open3d's ray caster: an independent renderer of the same capture)."""
 
 
 def simulated_capture(
@@ -65,6 +71,8 @@ def simulated_capture(
             resolution=cfg.resolution,
             frames=cfg.frames,
             seed=cfg.seed,
+            effects=cfg.effects,
+            renderer=cfg.renderer,
         ),
         progress=progress,
     )

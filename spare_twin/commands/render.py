@@ -97,10 +97,26 @@ def register(sub) -> None:
         help="render the same scene (table, clutter, cameras, path, noise) with NO object on the table; "
         "ground truth then has no n_links, segmentation is all background",
     )
+    p.add_argument(
+        "--effects",
+        default="none",
+        metavar="all|none|NAME,...",
+        help="what a real print and a real active sensor add, each seeded by --seed: joint_play, print_error, "
+        "shadows, flying_pixels, dark_plastic, principal_point, hand, pose_error, clutter; or all (default: none; "
+        "ranges and sources: docs/sensor_effects.md)",
+    )
+    p.add_argument(
+        "--renderer",
+        choices=("pybullet", "raycast"),
+        default="pybullet",
+        help="pybullet (TinyRenderer, default) or raycast (open3d's ray caster on the object's meshes: an "
+        "independent renderer of the same scene, same recording format)",
+    )
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
+    from spare_twin.sim.effects import parse_effects
     from spare_twin.sim.render import RenderConfig, render_recording
 
     cfg = RenderConfig(
@@ -118,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
         distance_m=args.distance,
         clutter=args.clutter,
         empty=args.empty,
+        effects=parse_effects(args.effects, param="--effects"),
+        renderer=args.renderer,
     )
     with flags(
         frames="--frames",
@@ -130,6 +148,8 @@ def run(args: argparse.Namespace) -> int:
         distance_m="--distance",
         clutter="--clutter",
         empty="--empty",
+        effects="--effects",
+        renderer="--renderer",
         rig="--rig",
         force="--force",
     ):

@@ -24,15 +24,19 @@ from spare_twin.object.kinematics import forward_kinematics, link_half_width_m, 
 from spare_twin.object.urdf import check_urdf
 from spare_twin.recording import SIM_DEPTH_SCALE, Camera, RecordingWriter
 from spare_twin.recording.format import MAX_FRAMES
+from spare_twin.sim.effects import NO_EFFECTS, CaptureEffects
 from spare_twin.sim.handheld import MIN_SWEEP_DEG, HandheldPath, handheld_poses
 from spare_twin.sim.motion import MotionConfig, object_motion
 from spare_twin.sim.noise import load_noise
+from spare_twin.sim.raycast import RENDERERS, make_renderer
+from spare_twin.sim.render_effects import EffectsRun
 from spare_twin.sim.rig import Rig, load_rig
-from spare_twin.sim.scene import MAX_CLUTTER, ClutterConfig, add_clutter, sample_clutter
-from spare_twin.sim.twin import Twin
+from spare_twin.sim.scene import MAX_CLUTTER, add_clutter, sample_clutter
 from spare_twin.validate import check_count, check_fits_memory
 
 PATHS = ("rig", "handheld")
+#: The source's sensor model of a render without a noise model, per renderer.
+CLEAN_SENSOR_MODEL = {"pybullet": "pybullet-tinyrenderer", "raycast": "open3d-raycast"}
 MOTIONS = ("moving", "static")
 
 
@@ -83,6 +87,11 @@ class RenderConfig:
     empty: bool = False
     """The same scene (table, clutter, cameras, path) with no object on the table: ground truth says
     there is none (no n_links), segmentation is all background."""
+    effects: CaptureEffects = NO_EFFECTS
+    """What a real print and a real sensor add (joint play, shadows, flying pixels, ...): see
+    `spare_twin.sim.effects`; none by default."""
+    renderer: str = "pybullet"
+    """pybullet (TinyRenderer) or raycast (open3d's ray caster on the object's meshes, independent of pybullet)."""
 
     def validate(self) -> None:
         check_count("frames", self.frames, MAX_FRAMES, "frame files are numbered with 6 digits")
@@ -109,6 +118,11 @@ class RenderConfig:
             raise SpareTwinError(f"clutter {self.clutter!r}: must be a whole number, 0..{MAX_CLUTTER}")
         if not isinstance(self.empty, bool):
             raise SpareTwinError(f"empty {self.empty!r}: must be true or false")
+        if self.renderer not in RENDERERS:
+            raise SpareTwinError(f"renderer {self.renderer!r}: expected one of {', '.join(RENDERERS)}")
+        if not isinstance(self.effects, CaptureEffects):
+            raise SpareTwinError(f"effects {self.effects!r}: must be a CaptureEffects")
+        self.effects.validate("effects")
 
     def handheld_path(self, min_range_m: float | None = None) -> HandheldPath:
         """The hand-held path this configuration asks for; `min_range_m` is the sensor's minimum range."""
@@ -175,7 +189,8 @@ def render_recording(
     rig = load_rig(cfg.rig)
     W, H = parse_resolution(cfg.resolution, rig)
     noise = load_noise(cfg.noise, param="noise")
-    K = rig.K(W, H)
+    fx = EffectsRun(cfg.effects, cfg.seed, obj.spec, W, noise.sensor if noise else None, cfg.empty)
+    K = fx.intrinsics(rig.K(W, H))
     angles = object_motion(
         obj,
         np.random.default_rng(cfg.seed),
@@ -189,18 +204,18 @@ def render_recording(
         cameras = [Camera(name, W, H, K, poses[i]) for i, name in enumerate(rig.camera_names())]
         frame_poses = {c.name: np.repeat(c.T_world_camera[None], cfg.frames, axis=0) for c in cameras}
     else:
-        path = cfg.handheld_path(noise.min_range_m if noise else None)
+        path = fx.handheld_path(cfg.handheld_path(noise.min_range_m if noise else None))
         frame_poses = {"cam0": handheld_poses(path, cfg.frames, cfg.seed)}
         cameras = [Camera("cam0", W, H, K, None, "unknown" if cfg.hide_poses else "per_frame")]
     clutter = sample_clutter(  # a stream of its own: clutter never changes the motion, path or noise
-        ClutterConfig(count=cfg.clutter),
+        fx.clutter_config(cfg.clutter),
         np.random.default_rng([cfg.seed, 0xC1A7]),
         footprint_segments_xy_m(obj.spec, angles),
         link_half_width_m(obj.spec),
     )
     source = {
         "kind": "sim",
-        "sensor_model": noise.sensor if noise else "pybullet-tinyrenderer",
+        "sensor_model": noise.sensor if noise else CLEAN_SENSOR_MODEL[cfg.renderer],
         "seed": cfg.seed,
         "geometry": "print",
         "near_m": rig.near_m,
@@ -215,6 +230,10 @@ def render_recording(
         source["clutter"] = clutter
     if cfg.empty:
         source["object"] = False  # the table without the object: nothing to find
+    if cfg.renderer != "pybullet":
+        source["renderer"] = cfg.renderer
+    if fx.active:
+        source["effects"] = fx.source()
     link_poses = np.zeros((cfg.frames, obj.spec.n_links + 1, 4, 4))
     depth_scale = noise.unit_m if noise else SIM_DEPTH_SCALE  # the sensor's own unit, as a real capture stores it
     # the rig and noise files read, when they are files (not names of shipped ones), are inputs too
@@ -233,10 +252,11 @@ def render_recording(
             inputs=inputs,
             force=force,
         ) as rec,
-        Twin() as twin,
+        make_renderer(cfg.renderer) as twin,
+        fx.object_folder(obj) as printed,  # obj itself unless joint play / print error perturb a copy
     ):
         if not cfg.empty:
-            twin.load(obj)
+            twin.load(printed)
         add_clutter(twin, clutter)
         no_labels = np.zeros((H, W), np.uint8)
         for t in tqdm(
@@ -244,15 +264,17 @@ def render_recording(
         ):
             if not cfg.empty:
                 twin.set_joints(angles[t])
-                link_poses[t] = twin.link_poses()
+                link_poses[t] = fx.link_poses(twin.link_poses())
             for v, cam in enumerate(cameras):
                 T = frame_poses[cam.name][t]
-                f = twin.render(T, K, W, H, rig.near_m, rig.far_m, segmentation=cfg.segmentation)
-                depth = f.depth_m
+                f = twin.render(T, K, W, H, rig.near_m, rig.far_m, segmentation=cfg.segmentation or fx.needs_labels)
+                depth = fx.depth(f.depth_m, f.segmentation, K, v, t)
                 if noise is not None:  # one stream per (seed, camera, frame): any subset re-renders identically
                     depth = noise.apply(depth, np.random.default_rng([cfg.seed, 0x5E, v, t]))
                 seg = f.segmentation if f.segmentation is not None or not cfg.segmentation else no_labels
-                rec.add_frame(cam.name, t, f.rgb, depth, seg, T_world_camera=T if cam.poses == "per_frame" else None)
+                seg = seg if cfg.segmentation else None
+                T_rec = fx.recorded_pose(T, t) if cam.poses == "per_frame" else None  # a tracker's, not the truth
+                rec.add_frame(cam.name, t, f.rgb, depth, seg, T_world_camera=T_rec)
         gt = {}
         if not cfg.empty:
             gt = dict(
@@ -261,6 +283,7 @@ def render_recording(
                 link_lengths_m=np.asarray(obj.spec.link_lengths_pu),
                 n_links=np.asarray(obj.spec.n_links),
                 print_scale=np.asarray(obj.spec.print_scale),
+                **fx.ground_truth(),
             )
         if cfg.path == "handheld":
             gt["T_world_camera"] = frame_poses["cam0"]  # true poses, also when the recording hides them
