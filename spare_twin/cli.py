@@ -76,8 +76,14 @@ def _say(line: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     # terminal is light (no numpy): text streams must not fail on encoding even for argument errors
-    from spare_twin.terminal import environment_problem, library_chatter_held, never_fail_on_encoding
+    from spare_twin.terminal import (
+        environment_problem,
+        fill_closed_stdin_stderr,
+        library_chatter_held,
+        never_fail_on_encoding,
+    )
 
+    fill_closed_stdin_stderr()
     never_fail_on_encoding()
     parser = build_parser()
     args = parser.parse_args(argv)

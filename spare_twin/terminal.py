@@ -191,6 +191,24 @@ def never_fail_on_encoding() -> None:
             stream.reconfigure(errors="backslashreplace")
 
 
+def fill_closed_stdin_stderr() -> None:
+    """A closed stdin or stderr (`2>&-`) gets /dev/null in its place: otherwise the first file the
+    command opens would take that number, and what C libraries print on stderr would land in it. Python
+    started without a stderr has `sys.stderr` None, which progress bars and warnings cannot write to."""
+    for fd in (0, 2):
+        try:
+            os.fstat(fd)
+        except OSError:
+            with contextlib.suppress(OSError):
+                null = os.open(os.devnull, os.O_RDWR)
+                if null != fd:
+                    os.dup2(null, fd)
+                    os.close(null)
+    if sys.stderr is None:
+        with contextlib.suppress(OSError):
+            sys.stderr = open(2, "w", errors="backslashreplace", buffering=1, closefd=False)
+
+
 def _pipe_without_reader(fd: int) -> bool:
     """Whether `fd` is a pipe whose reading end is closed (`spare-twin ... | true` after `true` ended):
     Linux reports POLLERR on its writing end."""

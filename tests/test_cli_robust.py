@@ -124,6 +124,15 @@ def test_stdout_broken_while_running_is_one_line_and_the_output_whole(json_flag,
     assert files(tmp_path / "o") == whole_object
 
 
+def test_closed_stderr_still_gives_one_json_object_and_the_output_whole(tmp_path, whole_object):
+    """With stderr closed, the first file the command opened took its number: C libraries' chatter
+    (pybullet's banner) would land in an output file, or on stdout beside the JSON object."""
+    p = spare_twin([*OBJECT, "--out", "o", "--json"], tmp_path, preexec_fn=lambda: os.close(2))
+    assert p.returncode == 0
+    assert len(p.stdout.splitlines()) == 1 and json.loads(p.stdout)["n_links"] == 2, p.stdout
+    assert files(tmp_path / "o") == whole_object
+
+
 # -- encodings -------------------------------------------------------------------------------------
 
 
