@@ -198,7 +198,7 @@ class Prediction:
         lines = [f"answer ({self.answer_kind}): {_estimate_words(self.answer, self.print_scale)}"]
         if self.source is not None:
             src = self.source_json()
-            words = src if isinstance(src, str) else "; ".join(f"{k} from {_names(v)}" for k, v in src.items())
+            words = f"the {src}" if isinstance(src, str) else "; ".join(f"{k} from {_names(v)}" for k, v in src.items())
             lines.append(f"  from: {words}")
         for name, est in (("network", self.network), ("measurement", self.measurement)):
             lines.append(f"{name}: " + ("not run" if est is None else _estimate_words(est, None)))
@@ -209,7 +209,7 @@ class Prediction:
 def _names(v) -> str:
     if isinstance(v, str):
         return f"the {v}"
-    return "slots " + ", ".join(v)
+    return "slot by slot the " + ", ".join(v)
 
 
 def _estimate_words(e: Estimate, print_scale: float | None) -> str:

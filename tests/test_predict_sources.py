@@ -1,0 +1,165 @@
+"""`predict` says where its answer comes from (issue 27): `predict --json` version 2, the `source`
+of each field, `--answer network` is the network's argmax, and flags that do not apply are refused."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+#: `predict --json`'s keys, in order (docs/design.md), on a recording with an answer.
+V2_KEYS = [
+    "format",
+    "version",
+    "n_links",
+    "link_lengths_pu",
+    "link_lengths_mm",
+    "joint_angles_rad",
+    "source",
+    "network",
+    "measurement",
+    "input",
+    "model",
+    "recording",
+    "answer",
+    "print_scale",
+]
+
+
+def _count_head(tmp_path, name: str, bias: list[float]):
+    """The shipped profile model with its count head replaced by fixed logits `bias` (whatever it
+    sees): a network whose answer is known and differs from the measurement's."""
+    import torch
+
+    from spare_twin.nets import checkpoint as ckpt
+
+    ck = ckpt.load(ckpt.default_model("predict"))
+    ck["state_dict"]["heads.count_logits.weight"] = torch.zeros_like(ck["state_dict"]["heads.count_logits.weight"])
+    ck["state_dict"]["heads.count_logits.bias"] = torch.tensor(bias, dtype=torch.float32)
+    return ckpt.save(tmp_path / name, ck)
+
+
+@pytest.fixture(scope="module")
+def sure_of_five(tmp_path_factory):
+    return _count_head(tmp_path_factory.mktemp("five"), "five.pt", [0, 0, 0, 0, 20.0, 0])
+
+
+def _predict(rec, capsys, *extra):
+    code, out, err = run_cli(["predict", str(rec), "--json", *extra], capsys)
+    assert code == 0, err
+    return json.loads(out)
+
+
+def test_version_2_keys_sources_and_evidence(rig_rec, capsys):
+    """The shipped model on the training rig's views of a 2-link object: the measurement's answer,
+    labelled so, both estimates with their evidence, lengths in paper units and in mm."""
+    res = _predict(rig_rec.root, capsys)
+    assert list(res) == V2_KEYS
+    assert res["format"] == "spare-twin-prediction" and res["version"] == 2 and res["answer"] == "combined"
+    assert res["n_links"] == 2 and len(res["link_lengths_pu"]) == 3 and len(res["joint_angles_rad"]) == 2
+    assert res["source"] == "measurement" and "probabilities" not in res and "link_lengths_m" not in res
+    assert res["link_lengths_mm"] == pytest.approx([1000 * 0.08 * v for v in res["link_lengths_pu"]], abs=1e-3)
+    truth = rig_rec.object_config["link_lengths_m"]  # object.json's paper-unit lengths
+    assert np.abs(np.subtract(res["link_lengths_pu"], truth)).max() < 0.05
+    m, net = res["measurement"], res["network"]
+    assert m["n_links"] == 2 and m["link_lengths_pu"] == res["link_lengths_pu"]
+    assert 0 < m["rms_m"] < 0.002 and sum(m["points_per_layer"][1:3]) > 100 and m["points_per_layer"][3] == 0
+    assert len(net["probabilities"]) == 6 and abs(sum(net["probabilities"]) - 1) < 1e-5
+    assert "yaw_deg" not in net  # the profile network guesses no yaw
+    # at another print scale the same paper units are other millimetres
+    other = _predict(rig_rec.root, capsys, "--print-scale", "0.1")
+    assert other["print_scale"] == 0.1
+    assert other["link_lengths_mm"] == pytest.approx([100 * v for v in other["link_lengths_pu"]], abs=1e-3)
+
+
+def test_answer_network_is_its_argmax_and_combined_is_the_measurement(rig_rec, sure_of_five, capsys):
+    """A network sure of 5 links on a 2-link object: `--answer network` says 5 (its argmax),
+    `combined` the measurement's 2, `--answer measurement` 2 with no network run."""
+    net_only = _predict(rig_rec.root, capsys, "--model", str(sure_of_five), "--answer", "network")
+    p = net_only["network"]["probabilities"]
+    assert net_only["n_links"] == int(np.argmax(p)) + 1 == 5 and net_only["source"] == "network"
+    assert net_only["measurement"] is None and len(net_only["link_lengths_pu"]) == 6
+    combined = _predict(rig_rec.root, capsys, "--model", str(sure_of_five))
+    assert combined["n_links"] == 2 and combined["source"] == "measurement"
+    assert combined["network"]["n_links"] == 5 and combined["measurement"]["n_links"] == 2
+    measured = _predict(rig_rec.root, capsys, "--answer", "measurement")
+    assert measured["n_links"] == 2 and measured["network"] is None and measured["model"] is None
+    assert measured["link_lengths_pu"] == combined["link_lengths_pu"]
+
+
+def test_a_network_that_is_not_sure_gives_no_answer(rig_rec, tmp_path, capsys):
+    """Even count logits (p = 1/6 each): no count from the network, with the reason."""
+    unsure = _count_head(tmp_path, "unsure.pt", [0.0] * 6)
+    res = _predict(rig_rec.root, capsys, "--model", str(unsure), "--answer", "network")
+    assert res["n_links"] is None and res["source"] is None and "too weak" in res["reason"]
+    assert res["network"]["n_links"] is None and res["network"]["probabilities"] == pytest.approx([1 / 6] * 6, abs=1e-6)
+
+
+def test_the_words_say_what_the_json_says(rig_rec, sure_of_five, capsys):
+    code, out, err = run_cli(["predict", str(rig_rec.root), "--model", str(sure_of_five)], capsys)
+    assert code == 0, err
+    lines = out.splitlines()
+    assert lines[0].startswith("answer (combined): 2 moving links") and " mm" in lines[0]
+    assert lines[1].strip() == "from: the measurement"
+    assert lines[2].startswith("network: 5 moving links") and "probability 1.000 on 5" in lines[2]
+    assert lines[3].startswith("measurement: 2 moving links") and "RMS" in lines[3]
+
+
+@pytest.mark.parametrize(
+    "extra, flag",
+    [
+        (["--n-links", "3"], "--n-links"),
+        (["--yaw-hypotheses", "2"], "--yaw-hypotheses"),
+        (["--answer", "measurement", "--model", "models/profile-multitask.pt"], "--model"),
+    ],
+)
+def test_flags_that_do_not_apply_are_refused(rig_rec, capsys, extra, flag):
+    """With the default (profile) model, a lengths-only flag and an image network's yaw search do not
+    apply, nor a model when no network runs: one line naming the flag, exit 1, nothing on stdout."""
+    code, out, err = run_cli(["predict", str(rig_rec.root), "--json", *extra], capsys)
+    assert code == 1 and out == "" and len(err.strip().splitlines()) == 1
+    assert f"{flag}: " in err, err
+
+
+def test_help_is_true(capsys):
+    with pytest.raises(SystemExit):
+        run_cli(["predict", "--help"], capsys)
+    text = " ".join(capsys.readouterr().out.split())
+    assert "recording's own object configuration is never read" in text and "default: the recording's" not in text
+    assert "--answer {combined,network,measurement}" in text and "link_lengths_m " not in text
+
+
+def test_a_hidden_last_link_labels_each_slot():
+    """The network sure of one link more than the layers count, with points in that layer: its count
+    and its last link, the measured links the measurement's; `source` names each slot's."""
+    import torch
+
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.combine import combined
+    from spare_twin.predict.estimate import Estimate, Prediction
+
+    probabilities = torch.zeros(1, 6)
+    probabilities[0, 2] = 0.9
+    res = {
+        "pred_n": torch.tensor([3]),
+        "lengths_e2e": torch.tensor([[1.0, 0.5, 0.5, 0.4, 0, 0, 0]]),
+        "angles": torch.full((1, 6), 0.3),
+        "probabilities": probabilities,
+    }
+    m = LayerMeasurement(2, np.array([1.1, 0.6, 0.7]), np.array([0.1, 0.2]), (300, 100, 80, 6, 0, 0, 0, 0), 0.0003)
+    network = Estimate(3, (1.0, 0.5, 0.5, 0.4), (0.3, 0.3, 0.3))
+    measurement = Estimate(2, (1.1, 0.6, 0.7), (0.1, 0.2))
+    answer, source = combined(res, m, network, measurement)
+    assert answer.n_links == 3 and answer.link_lengths_pu == pytest.approx((1.1, 0.6, 0.7, 0.4))
+    assert answer.joint_angles_rad == pytest.approx((0.1, 0.2, 0.3))
+    assert source == {
+        "n_links": "network",
+        "link_lengths_pu": ("measurement", "measurement", "measurement", "network"),
+        "joint_angles_rad": ("measurement", "measurement", "network"),
+    }
+    p = Prediction(answer, source, network, measurement, "combined", "profile", "m.pt", "rec", 0.08)
+    assert p.to_json()["source"]["link_lengths_pu"] == ["measurement", "measurement", "measurement", "network"]
+    with pytest.raises(ValueError):
+        Estimate(None, None, None)  # no count goes with a reason
