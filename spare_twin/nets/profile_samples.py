@@ -23,7 +23,6 @@ Every sample is a pure function of (seed, dataset seed, sequence, time step, var
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, replace
@@ -35,6 +34,7 @@ import torch
 from torch.utils.data import Dataset
 
 from spare_twin.config import MAX_MOVING_LINKS
+from spare_twin.io import read_json
 from spare_twin.measure.layers import LayerMeasurement, measure_profile
 from spare_twin.measure.slots import measurement_slots
 from spare_twin.observe.chain import find_chain
@@ -177,7 +177,7 @@ class ProfileSplit(Dataset):
 
     def __init__(self, root: str | Path, split: str = "test"):
         self.root = Path(root)
-        manifest = json.loads((self.root / "manifest.json").read_text())
+        manifest = read_json(self.root / "manifest.json")
         self.rows = [r for r in manifest["sequences"] if r["split"] == split]
         self.T = int(manifest["frames"])
         self._files: dict = {}

@@ -26,7 +26,7 @@ import torch
 from torch import nn
 
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import write_bytes_atomic, write_json_atomic
+from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.models import build_model, decode
@@ -70,7 +70,7 @@ def observe_split(
 
     jobs = []
     for d in data_dirs:
-        manifest = json.loads((d / "manifest.json").read_text())
+        manifest = read_json(d / "manifest.json")
         frames = int(manifest["frames"])
         for row in manifest["sequences"]:
             if row["split"] == split:
