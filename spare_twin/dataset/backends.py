@@ -65,7 +65,7 @@ def check_workers(workers: int | None) -> None:
 _POOL: dict = {}
 
 
-def start_pool(workers: int, initializer, initargs: tuple):
+def start_pool(workers: int, initializer=None, initargs: tuple = ()):
     """A pool of `workers` spawned processes (pybullet clients must not be forked) that stay quiet on Ctrl-C.
 
     SIGINT is blocked while they start: they inherit the block through exec, so a Ctrl-C while they
@@ -86,7 +86,8 @@ def _initialize_quietly(initializer, *initargs) -> None:
     and the driver alone answers it (one line, exit 130) and terminates the pool."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by start_pool; ignored from now
-    initializer(*initargs)
+    if initializer is not None:
+        initializer(*initargs)
 
 
 def _pool_init(cfg_dict: dict, seed: int, seq_dir: str) -> None:

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin.dataset.backends import SequenceRenderer
+from spare_twin.dataset.backends import SequenceRenderer, start_pool
 from spare_twin.dataset.build import PRESETS, generate_dataset
 from spare_twin.dataset.generate import GenConfig, _seeds, load_twin_object, sequence_spec
 from spare_twin.dataset.ray_backend import import_ray
@@ -121,13 +121,11 @@ def _raw_worker(job: tuple) -> tuple[int, float]:
 
 def _raw_rate(cfg: GenConfig, workers: int, per_worker: int) -> float:
     """Summed images/s of `workers` processes running the raw loop at the same time."""
-    import multiprocessing as mp
-
     jobs = [(cfg.to_dict(), SEED, [w * per_worker + k for k in range(per_worker)]) for w in range(workers)]
     if workers == 1:
         results = [_raw_worker(jobs[0])]
     else:
-        with mp.get_context("spawn").Pool(workers) as pool:
+        with start_pool(workers) as pool:  # quiet on Ctrl-C, like the dataset's own pool
             results = pool.map(_raw_worker, jobs)
     return sum(images / seconds for images, seconds in results)
 
