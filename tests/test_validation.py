@@ -541,3 +541,29 @@ def test_shard_check_reads_a_good_shard_and_names_a_wrong_one(tmp_path, capsys, 
     assert "not 1" in shard_problem(f, 1, 8, 2, 96, 128)
     assert "expected (8, 3, 96, 128)" in shard_problem(f, 0, 8, 3, 96, 128)
     assert shard_problem(tmp_path / "nothing.h5", 0, 8, 2, 96, 128).startswith("unreadable")
+
+
+@pytest.mark.parametrize(
+    "meta, words",
+    [
+        ([1, 2], "no 3x3 intrinsic_matrix"),
+        ({"intrinsic_matrix": [500, 0, 0, 0, 500, 0, 320, 240, 1], "depth_scale": "abc"}, "must be numbers"),
+        ({"intrinsic_matrix": [500, 0, 0, 0, 500, 0, 320, 240, 1], "depth_scale": 1e-320}, "finite and positive"),
+        ({"intrinsic_matrix": [500, 0, 0, 0, 500, 0, 320, 240, 1], "x": [[[[1]]]] * 2 + ["[" * 70]}, None),
+        ('{"intrinsic_matrix": ' + "[" * 70 + "]" * 70 + "}", "nested 71 deep"),
+    ],
+    ids=["not-an-object", "scale-a-string", "scale-infinite", "brackets-in-strings-are-fine", "nested"],
+)
+def test_open3d_intrinsics_file(meta, words, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    src = tmp_path / "o3d"
+    for kind in ("color", "depth"):
+        (src / kind).mkdir(parents=True)
+        shutil.copy(APC / f"frame-000015.{kind}.png", src / kind / "000000.png")
+    (src / "intrinsic.json").write_text(meta if isinstance(meta, str) else json.dumps(meta))
+    argv = ["capture", "import", "o3d", "--layout", "open3d", "--out", "rec"]
+    if words is None:  # a well-formed file: the import goes through
+        code, _, err = run_cli(argv, capsys)
+        assert code == 0, err
+    else:
+        refused(argv, capsys, tmp_path, "intrinsic.json", words)

@@ -222,12 +222,17 @@ def list_open3d(src: Path) -> Source:
             meta = read_json(p)
             try:
                 m = np.asarray(meta["intrinsic_matrix"], dtype=np.float64).reshape(3, 3).T  # open3d: column-major
-            except (KeyError, ValueError) as exc:
+            except (KeyError, TypeError, ValueError) as exc:  # TypeError: not a JSON object, or not numbers
                 raise SpareTwinError(f"{p}: no 3x3 intrinsic_matrix ({exc})") from None
             K = K_from(m[0, 0], m[1, 1], m[0, 2], m[1, 2])
-            if meta.get("depth_scale"):
-                depth_scale = 1.0 / float(meta["depth_scale"])  # open3d stores units per metre
-            fps = float(meta["fps"]) if meta.get("fps") else None
+            try:
+                if meta.get("depth_scale"):
+                    depth_scale = 1.0 / float(meta["depth_scale"])  # open3d stores units per metre
+                fps = float(meta["fps"]) if meta.get("fps") else None
+            except (TypeError, ValueError, ZeroDivisionError, OverflowError) as exc:
+                raise SpareTwinError(f"{p}: depth_scale and fps must be numbers ({exc})") from None
+            if not (np.isfinite(K).all() and np.isfinite(depth_scale) and depth_scale > 0):
+                raise SpareTwinError(f"{p}: intrinsic_matrix and depth_scale must be finite and positive")
             model = str(meta.get("device_name") or model)
             break
     frames = [FrameFiles(k, colors[k], depths[k]) for k in sorted(colors)]
