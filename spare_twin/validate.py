@@ -34,7 +34,7 @@ def pose_problem(T) -> str | None:
     if not np.isfinite(T).all():
         return "not finite (NaN or infinity)"
     if np.abs(T[3] - (0.0, 0.0, 0.0, 1.0)).max() > BOTTOM_ROW_TOLERANCE:
-        return f"bottom row {np.array2string(T[3], precision=6, separator=' ')[1:-1].strip()}: must be 0 0 0 1"
+        return f"bottom row {' '.join(f'{v:.6g}' for v in T[3])}: must be 0 0 0 1"
     R = T[:3, :3]
     err = np.abs(R.T @ R - np.eye(3)).max()
     if err > ROTATION_TOLERANCE:
@@ -62,10 +62,16 @@ def check_poses(poses, where: str) -> np.ndarray:
     poses = np.asarray(poses, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4):
         raise SpareTwinError(f"{where}: expected an (N, 4, 4) array of poses, got shape {poses.shape}")
-    for i, T in enumerate(poses):
-        problem = pose_problem(T)
-        if problem:
-            raise SpareTwinError(f"{where}: pose {i} is not a rigid pose ({problem})")
+    # all at once (a long recording has a pose per frame); the first bad one is then described
+    with np.errstate(all="ignore"):
+        R = poses[:, :3, :3]
+        ok = np.isfinite(poses).all(axis=(1, 2))
+        ok &= np.abs(poses[:, 3] - (0.0, 0.0, 0.0, 1.0)).max(axis=1) <= BOTTOM_ROW_TOLERANCE
+        ok &= np.abs(np.swapaxes(R, 1, 2) @ R - np.eye(3)).max(axis=(1, 2)) <= ROTATION_TOLERANCE
+        ok &= np.abs(np.linalg.det(np.where(np.isfinite(R), R, 0.0)) - 1.0) <= ROTATION_TOLERANCE
+        ok &= np.linalg.norm(poses[:, :3, 3], axis=1) <= MAX_TRANSLATION_M
+    for i in np.flatnonzero(~ok)[:1]:
+        raise SpareTwinError(f"{where}: pose {i} is not a rigid pose ({pose_problem(poses[i])})")
     return poses
 
 
