@@ -226,3 +226,47 @@ def test_bad_effects_are_one_line_errors_naming_the_flag(printed_object, tmp_pat
     bad = dataclasses.replace(ALL_EFFECTS, dark_return=(0.9, 0.2))
     with pytest.raises(Exception, match="effects: dark_return"):
         RenderConfig(effects=bad).validate()
+
+
+def test_hand_and_desk_wander_more_and_stand_closer(printed_object):
+    from spare_twin.sim.handheld import HandheldPath, handheld_poses
+    from spare_twin.sim.render import footprint_segments_xy_m
+    from spare_twin.sim.render_effects import EffectsRun
+    from spare_twin.sim.scene import clutter_radius_m, sample_clutter
+
+    spec = printed_object.spec
+    spread = {}
+    for name, fx in (("plain", NO_EFFECTS), ("hand", parse_effects("hand"))):
+        path = EffectsRun(fx, 3, spec, 640).handheld_path(HandheldPath())
+        eye = handheld_poses(path, 80, 3)[:, :3, 3]
+        spread[name] = (np.ptp(np.linalg.norm(eye[:, :2], axis=1)), np.ptp(eye[:, 2]))
+    assert spread["hand"][0] > 1.5 * spread["plain"][0] and spread["hand"][1] > 1.3 * spread["plain"][1]
+    footprint = footprint_segments_xy_m(spec, np.zeros((1, spec.n_links)))
+    gaps = []
+    for seed in range(8):
+        fx = EffectsRun(ALL_EFFECTS, seed, spec, 640)
+        items = sample_clutter(fx.clutter_config(0), np.random.default_rng([seed, 0xC1A7]), footprint, 0.006)
+        assert 2 <= len(items) <= 5 and len(items) == fx.clutter_drawn
+        for item in items:
+            c = np.asarray(item["position_m"][:2])
+            a, b = footprint[:, 0], footprint[:, 1]
+            t = np.clip(((c - a) * (b - a)).sum(1) / np.maximum(((b - a) ** 2).sum(1), 1e-12), 0, 1)
+            gaps.append(np.linalg.norm(a + t[:, None] * (b - a) - c, axis=1).min() - clutter_radius_m(item) - 0.006)
+    assert min(gaps) >= 0.03 - 1e-9 and min(gaps) < 0.06  # clear of the chain, some only centimetres away
+
+
+def test_simulated_capture_passes_its_effects_and_renderer_on(printed_object, tmp_path, monkeypatch):
+    from spare_twin.capture import simulated
+
+    seen = {}
+
+    def fake_render(object_dir, out, cfg, progress=True):
+        seen["cfg"] = cfg
+        raise RuntimeError("stop after the render's configuration")
+
+    monkeypatch.setattr(simulated, "render_recording", fake_render)
+    cfg = simulated.SensorCaptureConfig(effects=ALL_EFFECTS, renderer="raycast")
+    with pytest.raises(RuntimeError, match="stop after"):
+        simulated.simulated_capture(printed_object.root, tmp_path, cfg, progress=False)
+    assert seen["cfg"].effects == ALL_EFFECTS and seen["cfg"].renderer == "raycast"
+    assert simulated.SensorCaptureConfig().effects == NO_EFFECTS  # the capture the project was developed on

@@ -109,6 +109,7 @@ class RaycastTwin:
         self._angles = np.zeros(0)
         self._scene = None
         self._scene_key: bytes | None = None
+        self._dirs, self._dirs_key = np.zeros((0, 3), np.float32), None
         if table:
             slab = trimesh.creation.box(extents=[1.0, 1.0, 0.02])
             v, f = _mesh_arrays(slab)
@@ -178,7 +179,7 @@ class RaycastTwin:
             colours.append((gid, rgb))
         n_ids = max(g for g, _ in labels) + 1 if labels else 1
         self._label_lut = np.zeros(n_ids + 1, np.uint8)  # the last entry: no hit
-        self._rgb_lut = np.tile(np.asarray(BACKGROUND_RGB, float) / 255.0, (n_ids + 1, 1))
+        self._rgb_lut = np.tile(np.asarray(BACKGROUND_RGB, np.float32) / 255.0, (n_ids + 1, 1))
         for g, lab in labels:
             self._label_lut[g] = lab
         for g, rgb in colours:
@@ -202,27 +203,39 @@ class RaycastTwin:
 
         scene = self._build()
         T = np.asarray(T_world_camera, dtype=np.float64)
-        K = np.asarray(K, dtype=np.float64)
-        u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
-        d_cam = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
-        d_world = d_cam @ T[:3, :3].T  # unit z in the camera frame: the hit distance is the z-depth
-        rays = np.concatenate([np.broadcast_to(T[:3, 3], d_world.shape), d_world], -1).astype(np.float32)
-        hit = scene.cast_rays(o3d.core.Tensor(rays))
-        z = hit["t_hit"].numpy().astype(np.float32)
-        ids = hit["geometry_ids"].numpy().astype(np.int64)
+        dirs = self._pixel_directions(np.asarray(K, dtype=np.float64), width, height)
+        d_world = dirs @ T[:3, :3].T.astype(np.float32)  # unit z in the camera frame: the hit distance is the z-depth
+        rays = np.empty((len(dirs), 6), np.float32)
+        rays[:, :3] = T[:3, 3]
+        rays[:, 3:] = d_world
+        hit = scene.cast_rays(o3d.core.Tensor.from_numpy(rays))
+        z = hit["t_hit"].numpy()
         seen = np.isfinite(z) & (z >= near_m) & (z < far_m)
-        ids = np.where(seen, np.minimum(ids, len(self._label_lut) - 1), len(self._label_lut) - 1)
-        depth = np.where(seen, z, 0.0).astype(np.float32)
-        normals = hit["primitive_normals"].numpy().astype(np.float64)
-        facing = np.where((normals * d_world).sum(-1, keepdims=True) > 0, -normals, normals)
-        light = np.asarray(lighting.direction, float)
-        light = light / np.linalg.norm(light)
-        shade = lighting.ambient + lighting.diffuse * np.clip(facing @ light, 0.0, None)
-        rgb = self._rgb_lut[ids] * np.asarray(lighting.color, float) * shade[..., None]
-        rgb = np.where(seen[..., None], rgb, np.asarray(BACKGROUND_RGB, float) / 255.0)
-        rgb8 = np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8)
+        none = len(self._label_lut) - 1
+        ids = np.where(seen, np.minimum(hit["geometry_ids"].numpy(), none), none)
+        depth = np.where(seen, z, 0.0).astype(np.float32).reshape(height, width)
+        normals = hit["primitive_normals"].numpy()
+        light = np.asarray(lighting.direction, np.float32)
+        light /= np.linalg.norm(light)
+        # the face turned towards the camera is the lit one (an STL's winding is not trusted)
+        toward = np.where(np.einsum("ij,ij->i", normals, d_world) > 0, -1.0, 1.0).astype(np.float32)
+        lambert = np.clip(toward * (normals @ light), 0.0, None)
+        shade = (lighting.ambient + lighting.diffuse * lambert).astype(np.float32)
+        rgb = self._rgb_lut[ids] * np.asarray(lighting.color, np.float32) * shade[:, None]
+        rgb[~seen] = np.asarray(BACKGROUND_RGB, np.float32) / 255.0
+        rgb8 = np.clip(np.rint(rgb * 255.0), 0, 255).astype(np.uint8).reshape(height, width, 3)
+        ids = ids.reshape(height, width)
         labels = self._label_lut[ids] if segmentation and self.obj is not None else None
         return Frame(rgb8, depth, labels)
+
+    def _pixel_directions(self, K: np.ndarray, width: int, height: int) -> np.ndarray:
+        """(H W, 3) float32 camera-frame directions K^-1 (u, v, 1) through the pixel centres (cached per camera)."""
+        key = (K.tobytes(), width, height)
+        if self._dirs_key != key:
+            u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
+            d = np.stack([(u - K[0, 2]) / K[0, 0], (v - K[1, 2]) / K[1, 1], np.ones_like(u)], -1)
+            self._dirs, self._dirs_key = d.reshape(-1, 3).astype(np.float32), key
+        return self._dirs
 
     def close(self) -> None:
         self._scene = None
