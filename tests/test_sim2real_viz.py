@@ -183,6 +183,7 @@ def test_comparison_json_is_the_compare_object():
     assert "real (predict alone)" in lines[2] and "count right" in lines[2]
     assert lines[3].strip().startswith("diagnostic: real, twin-aligned") and "count WRONG" in lines[3]
     assert lines[-1].endswith("error 2.0, 0.0 deg")
+    assert "  real, each estimate alone: network n = 2" in lines  # the network's answer beside the answer
 
 
 def test_no_count_from_predict_is_reported_not_scored_right():

@@ -174,6 +174,9 @@ class Comparison:
         reason = self.real.to_json().get("reason")
         if reason:
             lines.append(f"  real: no count ({reason})")
+        alone = [(name, e) for name, e in (("network", self.real.network), ("measurement", self.real.measurement)) if e]
+        if alone:
+            lines.append("  real, each estimate alone: " + "; ".join(f"{k} n = {e.n_links}" for k, e in alone))
         angles = self.joint_angle_errors_deg
         if angles is not None:
             lines.append("  joint angles from registration: error " + ", ".join(f"{a:.1f}" for a in angles) + " deg")

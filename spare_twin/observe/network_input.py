@@ -1,5 +1,6 @@
-"""Any recording as the networks' input (`observe_recording`): the one place where a Recording becomes
-what a network reads.
+"""Any recording as an image network's input (`observe_recording`): where a Recording becomes what
+a multi-view or temporal network trained on the rig's images reads (the yaw-free profile network reads
+the chain's profile instead, `observe.chain`).
 
 The recording's views are brought into the network's input space: 96 x 128, centre-cropped to the
 4:3 aspect and resized, with the intrinsics adjusted to match (depth resized with nearest
@@ -8,8 +9,8 @@ Any other recording is brought into the canonical object frame (base at the orig
 chain in x-z; see `spare_twin.observe.canonical`): networks that fuse posed views take the recording's
 own views moved into that frame, the image networks see it re-rendered into the training rig
 (`to_rig_views`). A real recording's object frame is known only up to a yaw hypothesis (a quarter
-turn), so there is one input per hypothesis; `predict` keeps the most confident output. Unregistered
-real recordings are registered in a temporary copy first.
+turn), so there is one input per hypothesis; `spare_twin.predict.images` keeps the most confident
+output. Unregistered real recordings are registered in a temporary copy first.
 """
 
 from __future__ import annotations
