@@ -305,6 +305,9 @@ def test_a_dataset_lock_of_a_pid_now_anothers_blocks_nothing(tmp_path, capsys, s
     os.utime(lock, (1.0, 1.0))
     code, _, err = run_cli([*argv, "3"], capsys)
     assert code == 0 and not lock.exists(), err
+    lock.write_text("")  # a run killed as it wrote its lock
+    code, _, err = run_cli([*argv, "4"], capsys)
+    assert code == 0 and not lock.exists(), err
 
 
 # -- names and file systems ----------------------------------------------------------------------------

@@ -27,7 +27,7 @@ from spare_twin.dataset.generate import SPLITS, GenConfig, _seeds, sequence_spec
 from spare_twin.dataset.ray_backend import SHARDS, RaySession, run_ray
 from spare_twin.dataset.store import sequence_filename, shard_problem
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
+from spare_twin.io import read_json, write_json_atomic
 from spare_twin.output import OutputRefused, process_token, token_alive, token_pid, writing
 from spare_twin.validate import cap_workers, check_count, check_fits_memory, usable_cores
 
@@ -54,14 +54,15 @@ PRESETS = {"paper": Preset(instances=324), "small": Preset(instances=36), "tiny"
 # -- driver side -----------------------------------------------------------------------------
 def _lock_owner(path: Path) -> str | None:
     """The process token (`spare_twin.output.process_token`; an older lock's bare pid) a `_Lock` file
-    holds; None where the path is no such file (absent, or the user's)."""
+    holds, "" for an empty one (a run killed as it wrote it); None where the path is no such file
+    (absent, or the user's)."""
     if not path.is_file() or path.is_symlink():
         return None
     try:
         text = path.read_text(errors="replace").strip()
     except OSError:
         return None
-    return text if token_pid(text) is not None else None
+    return text if not text or token_pid(text) is not None else None
 
 
 class _Lock:
@@ -82,7 +83,8 @@ class _Lock:
             raise SpareTwinError(
                 f"{self.path.parent}: another spare-twin dataset (pid {token_pid(owner)}) is writing it"
             )
-        write_bytes_atomic(self.path, process_token().encode())
+        # written in place, not renamed in: a run killed meanwhile leaves an empty lock, not a temporary file
+        self.path.write_text(process_token())
         return self
 
     def __exit__(self, *exc):
