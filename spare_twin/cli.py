@@ -30,6 +30,7 @@ from spare_twin.commands import (
     dataset,
     demo,
     evaluate,
+    live,
     noise,
     predict,
     render,
@@ -41,7 +42,7 @@ from spare_twin.commands import object as object_command
 DEBUG_ENV = "SPARE_TWIN_DEBUG"
 
 #: Subcommand modules, in the order `--help` lists them.
-COMMANDS = (object_command, render, noise, dataset, train, evaluate, predict, capture, compare, demo, bench)
+COMMANDS = (object_command, render, noise, dataset, train, evaluate, predict, live, capture, compare, demo, bench)
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -57,6 +57,22 @@ def _tensor_np(image) -> np.ndarray:
     return np.asarray(t.cpu().numpy() if hasattr(t, "cpu") else t)
 
 
+def o3d_frame_arrays(im, size: tuple[int, int], where: str) -> tuple[np.ndarray, np.ndarray]:
+    """An open3d t.geometry.RGBDImage as (uint8 RGB colour, uint16 depth), checked to be `size` (H, W)."""
+    color = _tensor_np(im.color)
+    depth = _tensor_np(im.depth)
+    depth = depth[..., 0] if depth.ndim == 3 else depth
+    if color.shape[:2] != size or depth.shape != size:
+        raise SpareTwinError(
+            f"{where}: colour {color.shape[:2]} / depth {depth.shape} do not match the stream's {size[0]}x{size[1]}"
+        )
+    if color.ndim == 2:
+        color = np.repeat(color[..., None], 3, axis=2)
+    if color.dtype != np.uint8:  # some streams deliver 16-bit colour
+        color = (color / 257).astype(np.uint8)
+    return color[..., :3], depth.astype(np.uint16)
+
+
 def stream_to_recording(
     frames,
     md,
@@ -108,21 +124,10 @@ def stream_to_recording(
             for k, im in enumerate(frames):
                 if k % stride:
                     continue
-                color = _tensor_np(im.color)
-                depth = _tensor_np(im.depth)
-                depth = depth[..., 0] if depth.ndim == 3 else depth
-                if color.shape[:2] != (height, width) or depth.shape != (height, width):
-                    raise SpareTwinError(
-                        f"{source.get('path', 'sensor')}: frame {k}: colour {color.shape[:2]} / depth "
-                        f"{depth.shape} do not match the stream's {height}x{width}"
-                    )
-                if color.ndim == 2:
-                    color = np.repeat(color[..., None], 3, axis=2)
-                if color.dtype != np.uint8:  # some streams deliver 16-bit colour
-                    color = (color / 257).astype(np.uint8)
+                color, depth = o3d_frame_arrays(im, (height, width), f"{source.get('path', 'sensor')}: frame {k}")
                 if writer.frames_written == 0:
-                    check_depth(depth.astype(np.uint16), depth_scale, f"{source.get('path', 'sensor')} (first frame)")
-                writer.append(color[..., :3], depth.astype(np.uint16), timestamp())
+                    check_depth(depth, depth_scale, f"{source.get('path', 'sensor')} (first frame)")
+                writer.append(color, depth, timestamp())
                 bar.update(1)
                 if limit is not None and writer.frames_written >= limit:
                     break
@@ -135,20 +140,11 @@ def stream_to_recording(
     return Recording.open(out)
 
 
-def record_realsense(
-    out: str | Path, cfg: RecordConfig = RecordConfig(), progress: bool = True, force: bool = False
-) -> Recording:
-    """Record from a live RealSense until Ctrl-C, `max_frames` or `duration_s`; returns the Recording.
-
-    `out` follows the output rule (`spare_twin.output`), checked before the device is opened; `force`
-    replaces what the rule would refuse.
-    """
-    import time
-
+def start_realsense(cfg: RecordConfig = RecordConfig()):
+    """The first (or `cfg.serial`'s) RealSense, configured by `cfg` and capturing (recording its raw
+    stream to `cfg.bag` where set): an open3d RealSenseSensor; the caller stops it."""
     import open3d as o3d
 
-    inputs = (cfg.bag,) if cfg.bag else ()  # the raw .bag must not land inside the folder that is swapped in
-    check_output(out, RECORD, inputs, force)
     if not o3d.t.io.RealSenseSensor.list_devices():
         raise SpareTwinError("no Intel RealSense device found (check the USB 3 cable and `rs-enumerate-devices`)")
     config = {
@@ -167,6 +163,22 @@ def record_realsense(
         )
     if not sensor.start_capture(start_record=bool(cfg.bag)):
         raise SpareTwinError("RealSense: could not start capture")
+    return sensor
+
+
+def record_realsense(
+    out: str | Path, cfg: RecordConfig = RecordConfig(), progress: bool = True, force: bool = False
+) -> Recording:
+    """Record from a live RealSense until Ctrl-C, `max_frames` or `duration_s`; returns the Recording.
+
+    `out` follows the output rule (`spare_twin.output`), checked before the device is opened; `force`
+    replaces what the rule would refuse.
+    """
+    import time
+
+    inputs = (cfg.bag,) if cfg.bag else ()  # the raw .bag must not land inside the folder that is swapped in
+    check_output(out, RECORD, inputs, force)
+    sensor = start_realsense(cfg)
     t_end = None if cfg.duration_s is None else time.monotonic() + cfg.duration_s
 
     def frames():

@@ -1,0 +1,315 @@
+"""`spare-twin live`: frames in, written as a recording, placed one by one, the chain estimated at
+least once a second, and the final answer `predict`'s on what was written.
+
+Three threads share the work:
+
+- the reader takes each frame from the source as it comes (`live.sources`), appends it to the
+  recording (`RecordingWriter` as a stream: nothing seen is lost) and offers it to a queue of
+  `queue_frames`; when the queue is full the frame is dropped from the estimate (it is still in the
+  recording) and counted: frames that come faster than they can be used never pile up. With
+  `speed` 0 (a replay as fast as it is used) the reader waits instead, and no frame is dropped;
+- the tracker (the calling thread) places each queued frame against the last one (`live.track`);
+- the estimator, every `update_s` seconds that new frames were placed, estimates the chain from the
+  frames kept (`live.estimate`) and reports it: an update (`on_update`), the live view, and once the
+  answer has held for `stable_s` seconds of the stream with strong evidence, "enough" (with
+  `until_stable`, the stream stops there).
+
+Ctrl-C (SIGINT) stops the reader; the recording is finalised with every frame received, and the final
+answer is `predict` on it. Figures a run measures (`LiveResult`): the first estimate's time, the
+intervals between updates, frames dropped.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import queue
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin.errors import SpareTwinError
+from spare_twin.live.estimate import Estimator, estimate_from_frames, final_estimate, is_strong
+from spare_twin.live.sources import Source, StreamFrame
+from spare_twin.live.track import Tracker
+from spare_twin.output import check_output
+from spare_twin.predict.estimate import Prediction
+from spare_twin.recording import Camera, RecordingWriter
+
+#: The command whose output the recording is (its output marker).
+LIVE = "live"
+#: Lengths (paper units) within which two updates count as the same answer for "enough".
+STABLE_LENGTHS_PU = 0.02
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    update_s: float = 1.0
+    """An estimate at least this often (seconds of wall time) while new frames are placed."""
+    stable_s: float = 3.0
+    """"enough" once the answer held this long (seconds of the stream) with strong evidence."""
+    until_stable: bool = False
+    """Stop the stream at "enough"."""
+    queue_frames: int = 2
+    """Frames waiting to be placed; more are dropped from the estimate (never from the recording)."""
+    views: int = 16
+    """Placed frames an update reads (spread evenly over the stream so far)."""
+    work_width: int = 320
+    """Frames are placed and estimated at most this wide (`live.track`)."""
+    max_kept: int = 120
+    """Placed frames kept in memory for the estimate (`live.track`)."""
+
+    def __post_init__(self):
+        for name in ("update_s", "stable_s"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise SpareTwinError(f"{name} {v!r}: must be a positive number of seconds")
+        for name, least in (("queue_frames", 1), ("views", 2), ("work_width", 32), ("max_kept", 4)):
+            v = getattr(self, name)
+            if not isinstance(v, int) or isinstance(v, bool) or v < least:
+                raise SpareTwinError(f"{name} {v!r}: must be a whole number of at least {least}")
+
+
+@dataclass(frozen=True)
+class Update:
+    """One estimate as `live --jsonl` prints it: `predict`'s answer plus when and from what."""
+
+    prediction: Prediction
+    t_s: float
+    """Stream seconds of the newest frame it read."""
+    wall_s: float
+    """Wall seconds since the first frame came in, when it was reported."""
+    frames_used: int
+    frames_received: int
+    frames_placed: int
+    frames_dropped: int
+    enough: bool = False
+    final: bool = False
+
+    def to_json(self) -> dict:
+        return {
+            **self.prediction.to_json(),
+            "t_s": round(self.t_s, 3),
+            "frames_used": self.frames_used,
+            "frames_received": self.frames_received,
+            "frames_placed": self.frames_placed,
+            "frames_dropped": self.frames_dropped,
+            "wall_s": round(self.wall_s, 3),
+            "enough": self.enough,
+            "final": self.final,
+        }
+
+
+@dataclass
+class LiveResult:
+    updates: list[Update] = field(default_factory=list)
+    final: Update | None = None
+    enough_at: Update | None = None
+    interrupted: bool = False
+    frames_received: int = 0
+    frames_dropped: int = 0
+    frames_placed: int = 0
+    stream_s: float = 0.0
+
+
+class _Shared:
+    """What the three threads share, under one lock."""
+
+    def __init__(self):
+        self.lock = threading.Lock()
+        self.stop = threading.Event()
+        self.done = threading.Event()
+        """The reader has ended."""
+        self.tracked = threading.Event()
+        """The tracker has ended (every frame it will take is placed)."""
+        self.error: BaseException | None = None
+        self.received = 0
+        self.dropped = 0
+        self.t0_wall: float | None = None
+        self.last_t_s = 0.0
+
+
+def _read(source: Source, writer: RecordingWriter, q: queue.Queue, sh: _Shared, wait: bool) -> None:
+    """The reader thread (see the module doc)."""
+    try:
+        for f in source.frames(sh.stop):
+            writer.append(f.color_rgb, f.depth_u16, f.t_s)
+            with sh.lock:
+                sh.received += 1
+                sh.last_t_s = f.t_s
+                if sh.t0_wall is None:
+                    sh.t0_wall = time.monotonic()
+            if wait:
+                while not sh.stop.is_set():
+                    try:
+                        q.put(f, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+            else:
+                try:
+                    q.put_nowait(f)
+                except queue.Full:
+                    with sh.lock:
+                        sh.dropped += 1
+            if sh.stop.is_set():
+                break
+    except BaseException as err:  # handed to the calling thread, which raises it
+        sh.error = err
+    finally:
+        sh.done.set()
+
+
+def _same(a: Prediction, b: Prediction) -> bool:
+    if a.n_links is None or a.n_links != b.n_links:
+        return False
+    return float(np.max(np.abs(np.subtract(a.link_lengths_pu, b.link_lengths_pu)))) <= STABLE_LENGTHS_PU
+
+
+def held_for_s(updates: list[Update]) -> float:
+    """Stream seconds the newest update's answer has held (the same count, lengths within
+    `STABLE_LENGTHS_PU`) through the updates before it; 0 for no answer."""
+    if not updates or updates[-1].prediction.n_links is None:
+        return 0.0
+    last, start = updates[-1], updates[-1]
+    for u in reversed(updates[:-1]):
+        if not _same(u.prediction, last.prediction):
+            break
+        start = u
+    return last.t_s - start.t_s
+
+
+def enough_words(u: Update) -> str:
+    p = u.prediction
+    mm = ", ".join(f"{v:.1f}" for v in p.link_lengths_mm)
+    pu = ", ".join(f"{v:.3f}" for v in p.link_lengths_pu)
+    return (
+        f"enough: n = {p.n_links}, lengths {pu} (paper units, base first; {mm} mm) at {u.t_s:.1f} s "
+        f"of the stream, {u.frames_received} frames"
+    )
+
+
+def run_live(
+    source: Source,
+    out: str | Path,
+    est: Estimator,
+    cfg: LiveConfig = LiveConfig(),
+    on_update: Callable[[Update], None] = lambda u: None,
+    say: Callable[[str], None] = lambda line: None,
+    view=None,
+    force: bool = False,
+    wait_for_use: bool = False,
+) -> LiveResult:
+    """Run `live` on `source`, writing the recording to `out` (see the module doc). `on_update` gets
+    each update and then the final answer; `say` gets lines for a person; `view` (a
+    `live.rerun_view.LiveView`) is shown every frame placed and every update. `wait_for_use`: the
+    reader waits for the tracker instead of dropping frames (a replay at speed 0)."""
+    info = source.info
+    inputs = (info.path,) if info.path is not None else ()
+    check_output(out, LIVE, inputs, force)
+    camera = Camera("cam0", info.width, info.height, info.K, None, "unknown")
+    tracker = Tracker(info.K, info.depth_scale, cfg.work_width, cfg.max_kept)
+    res, sh = LiveResult(), _Shared()
+    q: queue.Queue = queue.Queue(maxsize=cfg.queue_frames)
+    writer = RecordingWriter(out, [camera], None, info.fps, info.source, depth_scale=info.depth_scale,
+                             kind=LIVE, inputs=inputs, force=force)  # fmt: skip
+    with writer:
+        reader = threading.Thread(target=_read, args=(source, writer, q, sh, wait_for_use), daemon=True)
+        estimator = threading.Thread(target=_estimate_loop, args=(est, tracker, cfg, sh, res, on_update, say, view))
+        estimator.daemon = True
+        try:
+            reader.start()
+            estimator.start()
+            _track(tracker, q, sh, view)
+            sh.tracked.set()
+            while estimator.is_alive():  # the last update, from every frame placed
+                estimator.join(0.1)
+        except KeyboardInterrupt:
+            res.interrupted = True
+        finally:
+            sh.tracked.set()
+            sh.stop.set()
+            while reader.is_alive():  # a reader waiting on a full queue lets go once it is drained
+                _drain(q)
+                reader.join(0.1)
+            estimator.join()
+            source.close()
+        if sh.error is not None:
+            raise sh.error
+        if res.interrupted:
+            say(f"stopped by Ctrl-C after {writer.frames_written} frames; recording finalised")
+    res.frames_received, res.frames_dropped, res.frames_placed = sh.received, sh.dropped, tracker.placed
+    res.stream_s = sh.last_t_s
+    pred = final_estimate(est, out)
+    picked = min(res.frames_received, 60)  # predict's own pick of a sweep's frames
+    final = Update(pred, sh.last_t_s, _wall(sh), picked, sh.received, tracker.placed, sh.dropped, final=True)
+    res.final = final
+    on_update(final)
+    if view is not None:
+        view.show_update(final, tracker)
+    return res
+
+
+def _drain(q: queue.Queue) -> None:
+    try:
+        while True:
+            q.get_nowait()
+    except queue.Empty:
+        pass
+
+
+def _wall(sh: _Shared) -> float:
+    return 0.0 if sh.t0_wall is None else time.monotonic() - sh.t0_wall
+
+
+def _track(tracker: Tracker, q: queue.Queue, sh: _Shared, view) -> None:
+    """The tracker: place queued frames until the reader is done and the queue empty."""
+    while not (sh.done.is_set() and q.empty()):
+        try:
+            f: StreamFrame = q.get(timeout=0.1)
+        except queue.Empty:
+            continue
+        placed = tracker.add(f)
+        if view is not None:
+            view.show_frame(f, placed, tracker)
+        if sh.error is not None:
+            return
+
+
+def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Shared, res: LiveResult, on_update, say,
+                   view) -> None:  # fmt: skip
+    """The estimator thread: an update every `update_s` while new frames are placed."""
+    used_placed, next_at = 0, None
+    try:
+        while not sh.stop.is_set() and not (sh.tracked.is_set() and tracker.placed == used_placed):
+            now = time.monotonic()
+            if next_at is not None and now < next_at:
+                sh.stop.wait(min(next_at - now, 0.05))
+                continue
+            with sh.lock:
+                kept, placed, received, dropped = list(tracker.kept), tracker.placed, sh.received, sh.dropped
+            if len(kept) < 2 or placed == used_placed:
+                sh.stop.wait(0.05)
+                continue
+            next_at = now + cfg.update_s
+            pred = estimate_from_frames(est, kept, cfg.views)
+            used_placed = placed
+            u = Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), cfg.views), received, placed, dropped)
+            res.updates.append(u)
+            strong = is_strong(pred)
+            if res.enough_at is None and strong and held_for_s(res.updates) >= cfg.stable_s:
+                u = dataclasses.replace(u, enough=True)
+                res.updates[-1] = u
+                res.enough_at = u
+                say(enough_words(u))
+                if cfg.until_stable:
+                    sh.stop.set()
+            on_update(u)
+            if view is not None:
+                view.show_update(u, tracker)
+    except BaseException as err:  # handed to the calling thread
+        sh.error = err
+        sh.stop.set()

@@ -1,0 +1,204 @@
+"""Where `live`'s frames come from: a recording folder replayed at its own frame rate, a RealSense
+`.bag` read through open3d's RSBagReader (the reader `capture import --layout bag` uses), or a live
+RealSense through `capture record`'s own device set-up.
+
+Every source is opened (and checked) before anything is written, then iterated: `frames()` yields
+`StreamFrame`s paced at the source's own rate (a replay or a bag: its timestamps divided by `speed`;
+a sensor: as it delivers them) until it ends or `stop` is set. A frame that cannot be read is a
+one-line error naming it.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin.capture.frames import K_from, check_depth
+from spare_twin.capture.record import RecordConfig, o3d_frame_arrays, start_realsense
+from spare_twin.errors import SpareTwinError
+from spare_twin.recording import Recording
+
+
+@dataclass(frozen=True)
+class StreamFrame:
+    """One frame as it arrives: 8-bit RGB colour, the sensor's raw uint16 depth, its time."""
+
+    index: int
+    """Arrival order from 0: the frame's number in the recording `live` writes."""
+    color_rgb: np.ndarray
+    depth_u16: np.ndarray
+    t_s: float
+    """Seconds since the stream's first frame, in the source's own clock (a replay's timestamps)."""
+
+
+@dataclass(frozen=True)
+class StreamInfo:
+    """What the recording `live` writes needs to know of a source."""
+
+    K: np.ndarray
+    width: int
+    height: int
+    depth_scale: float
+    """Metres per depth unit."""
+    fps: float
+    source: dict
+    """The recording's `source` entry."""
+    path: Path | None
+    """The file or folder read (an input of the output rule), None for a sensor."""
+
+
+class Source:
+    """A stream of frames; `frames(stop)` is iterated once."""
+
+    info: StreamInfo
+
+    def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
+        raise NotImplementedError
+
+    def close(self) -> None:
+        """Release the device or file (called once the stream has ended)."""
+
+
+def _paced(t_s: float, start: float, speed: float, stop: threading.Event) -> None:
+    """Wait until stream time `t_s` (at `speed` times its rate) has come since wall time `start`;
+    speed 0: no waiting."""
+    if speed > 0:
+        wait = start + t_s / speed - time.monotonic()
+        if wait > 0:
+            stop.wait(wait)
+
+
+class ReplaySource(Source):
+    """A recording folder's first camera, frame by frame at its timestamps / `speed` (0: as fast
+    as the frames are taken, none dropped)."""
+
+    def __init__(self, rec_dir: str | Path, speed: float = 1.0):
+        root = Path(rec_dir)
+        if not root.exists():
+            raise SpareTwinError(f"{root}: no such recording folder")
+        rec = Recording.open(root)
+        if len(rec.cameras) != 1:
+            raise SpareTwinError(
+                f"{root}: live replays one moving camera; this recording has {len(rec.cameras)} cameras (a rig)"
+            )
+        cam = rec.cameras[0]
+        self.rec, self.cam, self.speed = rec, cam.name, float(speed)
+        self.info = StreamInfo(
+            np.asarray(cam.K, np.float64),
+            cam.width,
+            cam.height,
+            rec.depth_scale,
+            rec.fps,
+            {**rec.source, "layout": "live", "replayed": str(root.resolve())},
+            root,
+        )
+
+    def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
+        times = self.rec.timestamps_s
+        start = time.monotonic()
+        for f in range(self.rec.n_frames):
+            if stop.is_set():
+                return
+            t_s = float(times[f] - times[0])
+            _paced(t_s, start, self.speed, stop)
+            color, depth = self.rec.color(self.cam, f), self.rec.depth_raw(self.cam, f)
+            if depth.shape != color.shape[:2] or depth.shape != (self.info.height, self.info.width):
+                raise SpareTwinError(f"{self.rec.path(self.cam, 'depth', f)}: size differs from the camera's")
+            check_depth(depth, self.info.depth_scale, self.rec.path(self.cam, "depth", f))
+            yield StreamFrame(f, color, depth, t_s)
+
+
+class _O3dStream(Source):
+    """Frames from an open3d RGBD video reader (RSBagReader, RealSenseSensor) and its metadata."""
+
+    def _set_info(self, md, source: dict, path: Path | None) -> None:
+        Km = np.asarray(md.intrinsics.intrinsic_matrix, dtype=np.float64)
+        self.info = StreamInfo(
+            K_from(Km[0, 0], Km[1, 1], Km[0, 2], Km[1, 2]),
+            int(md.width),
+            int(md.height),
+            1.0 / float(md.depth_scale),  # open3d: depth units per metre
+            float(md.fps) or 30.0,
+            source,
+            path,
+        )
+
+    def _arrays(self, im, index: int, where: str) -> tuple[np.ndarray, np.ndarray]:
+        color, depth = o3d_frame_arrays(im, (self.info.height, self.info.width), f"{where}: frame {index}")
+        check_depth(depth, self.info.depth_scale, f"{where}: frame {index}")
+        return color, depth
+
+
+class BagSource(_O3dStream):
+    """A RealSense .bag through open3d's RSBagReader, paced at its timestamps / `speed`."""
+
+    def __init__(self, path: str | Path, speed: float = 1.0):
+        self.path, self.speed = Path(path), float(speed)
+        if not self.path.is_file():
+            raise SpareTwinError(f"{self.path}: no such file")
+        import open3d as o3d
+
+        self.reader = o3d.t.io.RSBagReader()
+        if not self.reader.open(str(self.path)):
+            raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file")
+        md = self.reader.metadata
+        source = {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense", "layout": "bag"}
+        self._set_info(md, {**source, "path": str(self.path.resolve())}, self.path)
+
+    def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
+        start, t0, k = time.monotonic(), None, 0
+        while not stop.is_set() and not self.reader.is_eof():
+            im = self.reader.next_frame()
+            if self.reader.is_eof() and im.is_empty():
+                return
+            stamp_s = self.reader.get_timestamp() * 1e-6
+            t0 = stamp_s if t0 is None else t0
+            _paced(stamp_s - t0, start, self.speed, stop)
+            color, depth = self._arrays(im, k, str(self.path))
+            yield StreamFrame(k, color, depth, stamp_s - t0)
+            k += 1
+
+    def close(self) -> None:
+        self.reader.close()
+
+
+class RealSenseSource(_O3dStream):
+    """A live RealSense, set up as `capture record` sets it up (`capture.record.start_realsense`)."""
+
+    def __init__(self, cfg: RecordConfig = RecordConfig()):
+        self.sensor = start_realsense(cfg)
+        md = self.sensor.get_metadata()
+        source = {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense", "layout": "live"}
+        self._set_info(md, {**source, "serial": md.serial_number}, None)
+
+    def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
+        t0, k = None, 0
+        while not stop.is_set():
+            im = self.sensor.capture_frame(True, True)
+            stamp_s = self.sensor.get_timestamp() * 1e-6
+            t0 = stamp_s if t0 is None else t0
+            color, depth = self._arrays(im, k, "RealSense")
+            yield StreamFrame(k, color, depth, stamp_s - t0)
+            k += 1
+
+    def close(self) -> None:
+        self.sensor.stop_capture()
+
+
+def open_source(replay: str | Path | None, bag: str | Path | None, speed: float = 1.0) -> Source:
+    """The source `live` reads: `replay` (a recording folder), `bag` (a .bag file) or, with neither,
+    the first RealSense connected; one-line errors for a missing folder, no device, a bad speed."""
+    if replay is not None and bag is not None:
+        raise SpareTwinError("--replay, --bag: give one source, not both")
+    if not (isinstance(speed, (int, float)) and np.isfinite(speed) and speed >= 0):
+        raise SpareTwinError(f"--speed {speed}: must be 0 (as fast as frames are taken) or a positive factor")
+    if replay is not None:
+        return ReplaySource(replay, speed)
+    if bag is not None:
+        return BagSource(bag, speed)
+    return RealSenseSource()

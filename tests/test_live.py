@@ -1,0 +1,204 @@
+"""`spare-twin live` (issue 29): a simulated hand-held sweep replayed as a stream; the updates converge
+to `predict`'s answer on the recording live wrote; Ctrl-C keeps a recording predict reads; the view
+is an .rrd Rerun accepts, the twin's URDF in it; a bad source is one line."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import run_cli
+
+PREDICT_KEYS = ("n_links", "link_lengths_pu", "link_lengths_mm", "joint_angles_rad", "source", "network", "measurement")
+SPARE_TWIN = Path(sys.executable).with_name("spare-twin")
+
+
+@pytest.fixture(scope="module")
+def sweep(printed_object, tmp_path_factory):
+    """A hand-held sweep with its poses hidden, 16 frames at 320 x 240 (a sensor's stream)."""
+    from spare_twin.cli import main
+
+    out = tmp_path_factory.mktemp("sweep") / "rec"
+    argv = ["render", str(printed_object.root), "--out", str(out), "--path", "handheld", "--hide-poses"]
+    assert main([*argv, "--frames", "16", "--resolution", "320x240", "--noise", "realsense_sr300", "--seed", "2"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def replayed(sweep, tmp_path_factory):
+    """`live --replay --speed 0 --jsonl --rrd` of the hand-held sweep (every frame used: deterministic
+    placing), and `predict --json` on the recording it wrote."""
+    root = tmp_path_factory.mktemp("live")
+    out, rrd = root / "rec", root / "live.rrd"
+    argv = ["live", "--replay", str(sweep), "--speed", "0", "--jsonl", "--rrd", str(rrd), "--out", str(out)]
+    cmd = [str(SPARE_TWIN), *argv, "--update-s", "0.2", "--stable-s", "0.3"]
+    live = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert live.returncode == 0, live.stderr[-2000:]
+    predict = subprocess.run([str(SPARE_TWIN), "predict", str(out), "--json"], capture_output=True, text=True)
+    assert predict.returncode == 0, predict.stderr[-2000:]
+    lines = [json.loads(line) for line in live.stdout.splitlines()]
+    return lines, json.loads(predict.stdout), out, rrd, live.stderr
+
+
+def test_updates_converge_to_predict_on_the_recording_live_wrote(replayed):
+    lines, predicted, out, _, _ = replayed
+    assert len(lines) >= 3  # updates while frames come in, then the final answer
+    for line in lines:
+        assert all(k in line for k in (*PREDICT_KEYS, "t_s", "frames_used"))
+        assert line["format"] == "spare-twin-prediction" and line["version"] == 2
+    *updates, final = lines
+    assert final["final"] and not any(u["final"] for u in updates)
+    assert [u["t_s"] for u in updates] == sorted(u["t_s"] for u in updates)
+    assert updates[-1]["frames_placed"] == updates[-1]["frames_received"] == 16  # speed 0: nothing dropped
+    # the final answer is predict's on the recording written: the same count, the same lengths
+    assert predicted["n_links"] == final["n_links"] == 2
+    assert np.allclose(final["link_lengths_pu"], predicted["link_lengths_pu"], atol=0.01)
+    # ... and the last update, from the frames placed on the way, already says it
+    last = updates[-1]
+    assert last["n_links"] == predicted["n_links"]
+    assert np.abs(np.subtract(last["link_lengths_pu"], predicted["link_lengths_pu"])).max() < 0.01
+    assert last["measurement"] is not None and last["source"] is not None
+
+
+def test_the_recording_holds_every_frame_of_the_stream(replayed, sweep):
+    from spare_twin.recording import Recording
+
+    _, _, out, _, _ = replayed
+    src, rec = Recording.open(sweep), Recording.open(out)
+    assert rec.n_frames == src.n_frames and rec.camera_poses("cam0") is None  # a sensor's stream: poses unknown
+    for f in (0, src.n_frames // 2, src.n_frames - 1):
+        assert np.array_equal(rec.depth_raw("cam0", f), src.depth_raw(src.cameras[0].name, f))
+        assert np.array_equal(rec.color("cam0", f), src.color(src.cameras[0].name, f))
+    assert rec.depth_scale == src.depth_scale and np.allclose(rec.cameras[0].K, src.cameras[0].K)
+
+
+def test_enough_is_said_once_the_answer_held(replayed):
+    lines, _, _, _, stderr = replayed
+    enough = [u for u in lines if u["enough"]]
+    assert len(enough) == 1 and enough[0]["n_links"] == 2
+    assert "enough: n = 2, lengths" in stderr
+
+
+def test_the_rrd_is_accepted_by_rerun_and_poses_the_urdf_twin(replayed):
+    _, _, _, rrd, _ = replayed
+    rerun = Path(sys.executable).with_name("rerun")
+    if not rerun.is_file():
+        pytest.skip("no rerun command")
+    verify = subprocess.run([str(rerun), "rrd", "verify", str(rrd)], capture_output=True, text=True, timeout=120)
+    assert verify.returncode == 0, verify.stderr[-2000:]
+    printed = subprocess.run([str(rerun), "rrd", "print", str(rrd)], capture_output=True, text=True, timeout=120)
+    text = printed.stdout + printed.stderr
+    # the twin through Rerun's URDF loader (its meshes as Asset3D under the robot), posed by joint transforms
+    assert "visual_geometries/link2" in text and "Asset3D:blob" in text
+    assert "/twin0/joints/joint1" in text and "/twin0/root" in text
+    for entity in ("/world/camera/image", "/world/points", "/world/chain", "/estimate/length_pu/L0"):
+        assert entity + " " in text
+
+
+def test_until_stable_stops_the_stream_at_enough(sweep, tmp_path, capsys):
+    out = tmp_path / "rec"
+    argv = ["live", "--replay", str(sweep), "--speed", "0", "--no-viewer", "--jsonl", "--out", str(out)]
+    code, stdout, err = run_cli([*argv, "--update-s", "0.2", "--stable-s", "0.2", "--until-stable"], capsys)
+    assert code == 0, err
+    from spare_twin.recording import Recording
+
+    *updates, final = [json.loads(line) for line in stdout.splitlines()]
+    assert updates[-1]["enough"] and not any(u["enough"] for u in updates[:-1])  # no update after enough
+    assert final["final"] and Recording.open(out).n_frames == final["frames_received"]
+    assert "enough: n = " in err
+
+
+def test_sigint_mid_replay_leaves_a_recording_predict_reads(sweep, tmp_path):
+    out = tmp_path / "rec"
+    cmd = [str(SPARE_TWIN), "live", "--replay", str(sweep), "--speed", "0.1", "--no-viewer", "--jsonl"]
+    proc = subprocess.Popen(
+        [*cmd, "--answer", "measurement", "--update-s", "0.3", "--out", str(out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    first = proc.stdout.readline()  # the first update: frames are coming in (one every second)
+    assert first, proc.stderr.read()[-2000:]
+    proc.send_signal(signal.SIGINT)
+    rest, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err[-2000:]
+    assert "stopped by Ctrl-C after" in err and "Traceback" not in err
+    final = json.loads(rest.splitlines()[-1])
+    assert final["final"]
+    from spare_twin.recording import Recording
+
+    rec = Recording.open(out)
+    rec.validate()
+    assert 1 <= rec.n_frames < 16 and final["frames_received"] == rec.n_frames
+    predict = subprocess.run([str(SPARE_TWIN), "predict", str(out), "--json", "--answer", "measurement"],
+                             capture_output=True, text=True)  # fmt: skip
+    assert predict.returncode == 0, predict.stderr[-2000:]
+    assert not list(tmp_path.glob(".*spare-twin*"))  # no temporary left beside it
+
+
+def _one_line_error(code: int, err: str, *words: str) -> None:
+    assert code == 1
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err, err
+    assert all(w in lines[0] for w in words), lines[0]
+
+
+def test_a_missing_replay_folder_is_one_line(tmp_path, capsys):
+    out = tmp_path / "rec"
+    code, _, err = run_cli(["live", "--replay", str(tmp_path / "nope"), "--no-viewer", "--out", str(out)], capsys)
+    _one_line_error(code, err, "nope", "no such recording folder")
+    assert not out.exists()
+
+
+def test_a_missing_bag_is_one_line(tmp_path, capsys):
+    code, _, err = run_cli(
+        ["live", "--bag", str(tmp_path / "x.bag"), "--no-viewer", "--out", str(tmp_path / "r")], capsys
+    )
+    _one_line_error(code, err, "x.bag", "no such file")
+
+
+def test_no_device_is_one_line(tmp_path, capsys):
+    code, _, err = run_cli(["live", "--no-viewer", "--out", str(tmp_path / "r")], capsys)
+    _one_line_error(code, err, "RealSense")
+    assert not (tmp_path / "r").exists()
+
+
+def test_a_corrupt_frame_is_one_line_and_writes_nothing(sweep, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(sweep, bad)
+    depth = sorted((bad / "cameras").glob("*/depth/*.png"))[5]
+    depth.write_bytes(depth.read_bytes()[:100])  # cut off mid-file
+    out = tmp_path / "rec"
+    argv = ["live", "--replay", str(bad), "--speed", "0", "--no-viewer", "--answer", "measurement", "--out", str(out)]
+    code, _, err = run_cli(argv, capsys)
+    _one_line_error(code, err, depth.name)
+    assert not out.exists() and not list(tmp_path.glob(".*spare-twin*"))
+
+
+def test_bad_options_are_one_line(sweep, tmp_path, capsys):
+    base = ["live", "--replay", str(sweep), "--no-viewer", "--out", str(tmp_path / "r")]
+    for extra, words in (
+        (["--speed", "-1"], ("--speed",)),
+        (["--stable-s", "0"], ("--stable-s",)),
+        (["--views", "1"], ("--views",)),
+    ):
+        code, _, err = run_cli([*base, *extra], capsys)
+        _one_line_error(code, err, *words)
+    assert not (tmp_path / "r").exists()
+
+
+def test_an_output_that_is_not_a_live_recording_is_refused(sweep, tmp_path, capsys):
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("mine")
+    code, _, err = run_cli(["live", "--replay", str(sweep), "--no-viewer", "--out", str(out)], capsys)
+    _one_line_error(code, err, "mine")
+    assert (out / "notes.txt").read_text() == "mine"
+    assert os.listdir(out) == ["notes.txt"]
