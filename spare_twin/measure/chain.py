@@ -33,7 +33,7 @@ def measured_chain(
 
 
 def measure_views(
-    seen: PosedViews, print_scale: float, progress: bool = False
+    seen: PosedViews, print_scale: float, progress: bool = False, min_arc_deg: float = 0.0
 ) -> tuple[ChainObservation, LayerMeasurement]:
     """The chain's observation in posed views and its layer measurement (`measure.layers.measure_profile`);
     the observation's `timings_s` gain "measurement", all summed over the tries.
@@ -49,9 +49,12 @@ def measure_views(
     object shows little (a Kinect at a metre and more), and the half without that run fuses into one
     chain; so does the half of a sweep before (or after) the object was bumped. The try whose chain
     fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends the search. Views
-    with their own poses (a rig, a tracked camera) are looked at once: they are placed as given."""
+    with their own poses (a rig, a tracked camera) are looked at once: they are placed as given.
+    Views that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
+    `spare_twin.predict.abstain` gives no answer on them)."""
     views = list(seen.views)
-    as_registered = _measure(observe_views(views, seen.source, seen.registration_s, print_scale), print_scale)
+    seen_once = observe_views(views, seen.source, seen.registration_s, print_scale)
+    as_registered = _measure(seen_once, print_scale, min_arc_deg)
     if seen.source != REGISTERED_SWEEP:
         return as_registered
     on_object, measured = _on_object(views, seen.registration_s, print_scale)
@@ -90,10 +93,15 @@ def _add(a: dict, b: dict, but: str | None = None) -> dict:
     return {k: round(a[k] + (0.0 if k == but else b[k]), 3) for k in a}
 
 
-def _measure(seen: ChainObservation, print_scale: float) -> tuple[ChainObservation, LayerMeasurement]:
+def _measure(
+    seen: ChainObservation, print_scale: float, min_arc_deg: float = 0.0
+) -> tuple[ChainObservation, LayerMeasurement]:
     t0 = time.perf_counter()
     if seen.reason is not None:
         measured = LayerMeasurement(None, None, None, ())
+    elif seen.arc_deg is not None and seen.arc_deg < min_arc_deg:
+        why = f"not measured: the views go {seen.arc_deg:g} deg round it (at least {min_arc_deg:g})"
+        measured = LayerMeasurement(None, None, None, (), reason=why)
     else:
         measured = measure_profile(seen.object, seen.profile, print_scale)
     timings = {**seen.timings_s, "measurement": round(time.perf_counter() - t0, 3)}

@@ -106,11 +106,11 @@ def measurement_estimate(obs: ChainObservation, m: LayerMeasurement) -> Estimate
     if obs.reason is not None:
         return Estimate.none(f"no chain in view: {obs.reason}")
     evidence = MeasurementEvidence(m.rms_m, tuple(int(p) for p in m.points_per_layer))
-    if m.reason is not None:
-        return Estimate.none(f"no chain measured: {m.reason}", evidence)
-    why = not_a_chain(obs, m)
+    why = not_a_chain(obs, m) if m.reason is None or obs.arc_deg < MIN_ARC_DEG else None
     if why is not None:
         return Estimate.none(f"no chain measured: {why}", evidence)
+    if m.reason is not None:
+        return Estimate.none(f"no chain measured: {m.reason}", evidence)
     if m.n_links is None:
         return Estimate.none("no chain measured: too few points off the base layer to count a link", evidence)
     angles = None if m.angles_rad is None else _floats(m.angles_rad)

@@ -24,7 +24,7 @@ from spare_twin.nets.models import decode, model_inputs
 from spare_twin.nets.presets import NetConfig
 from spare_twin.observe.network_input import InputSpec, NetworkInput, observe_recording
 from spare_twin.observe.views import recording_views
-from spare_twin.predict.abstain import measurement_estimate, network_estimate
+from spare_twin.predict.abstain import MIN_ARC_DEG, measurement_estimate, network_estimate
 from spare_twin.predict.estimate import FIELDS, Estimate, Prediction
 from spare_twin.recording import Recording
 
@@ -76,7 +76,8 @@ def predict_images(
     in_rig = rig is None or rec.rig == rig
     measurement, obs, timings = None, None, {}
     if answer == "combined" and not in_rig:
-        obs, m = measure_views(recording_views(rec, frame, camera, progress=progress), print_scale, progress)
+        views = recording_views(rec, frame, camera, progress=progress)
+        obs, m = measure_views(views, print_scale, progress, min_arc_deg=MIN_ARC_DEG)
         measurement, timings = measurement_estimate(obs, m), dict(obs.timings_s)
     common = dict(answer_kind=answer, model=model_name, recording=str(rec_dir), print_scale=print_scale)
     if measurement is not None and measurement.n_links is None:  # no chain on the table: no network is asked

@@ -25,7 +25,7 @@ from spare_twin.nets.models import decode
 from spare_twin.observe.chain import ChainObservation
 from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
 from spare_twin.observe.views import PosedViews, recording_views
-from spare_twin.predict.abstain import hold_network, measurement_estimate, network_estimate
+from spare_twin.predict.abstain import MIN_ARC_DEG, hold_network, measurement_estimate, network_estimate
 from spare_twin.predict.combine import combined
 from spare_twin.predict.estimate import ANSWERS, FIELDS, Estimate, Prediction
 from spare_twin.predict.images import predict_images
@@ -146,7 +146,7 @@ def predict_views(
     """The core: posed views in memory -> the chain observed and measured (`measure.chain.measure_views`)
     -> the yaw-free profile network (`model`, `net`: a loaded profile checkpoint; None with
     `answer="measurement"`) -> the answer `answer` asks for, with both estimates and their sources."""
-    obs, m = measure_views(seen, print_scale, progress)
+    obs, m = measure_views(seen, print_scale, progress, min_arc_deg=MIN_ARC_DEG)
     return answer_of(obs, m, model, net, model_name, answer, print_scale, device, recording)
 
 
