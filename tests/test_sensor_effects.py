@@ -2,6 +2,7 @@
 what it renders, the raycast renderer against pybullet, and byte-identical recordings per seed."""
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -202,6 +203,11 @@ def test_every_effect_same_seed_same_bytes(printed_object, tmp_path, capsys, ren
     assert _same_bytes(tmp_path / "a", tmp_path / "b")
     assert not _same_bytes(tmp_path / "a", tmp_path / "c")
     rec = Recording.open(tmp_path / "a")
+    # a recording's source.effects, as a JSON file, replays the same capture
+    (tmp_path / "fx.json").write_text(json.dumps(rec.source["effects"]))
+    argv[argv.index("all")] = str(tmp_path / "fx.json")
+    assert main(["render", str(printed_object.root), "--out", str(tmp_path / "d"), *argv, "--seed", "5"]) == 0
+    assert _same_bytes(tmp_path / "a", tmp_path / "d")
     fx = rec.source["effects"]
     assert fx["on"] == list(EFFECTS) and fx["drawn"]["baseline_m"] == 0.05
     lo, hi = ALL_EFFECTS.clutter_count
@@ -222,6 +228,11 @@ def test_bad_effects_are_one_line_errors_naming_the_flag(printed_object, tmp_pat
     code = main(["render", str(printed_object.root), "--out", str(out), "--effects", "shadows,wobble"])
     err = capsys.readouterr().err
     assert code == 1 and err.count("\n") == 1 and "--effects 'wobble': no such effect" in err
+    assert not out.exists()
+    (tmp_path / "fx.json").write_text(json.dumps({"dark_return": [0.2, 1.5]}))
+    code = main(["render", str(printed_object.root), "--out", str(out), "--effects", str(tmp_path / "fx.json")])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and "fx.json: dark_return (0.2, 1.5): must lie within 0..1" in err
     assert not out.exists()
     bad = dataclasses.replace(ALL_EFFECTS, dark_return=(0.9, 0.2))
     with pytest.raises(Exception, match="effects: dark_return"):

@@ -100,9 +100,10 @@ def register(sub) -> None:
     p.add_argument(
         "--effects",
         default="none",
-        metavar="all|none|NAME,...",
+        metavar="all|none|NAME,...|FILE.json",
         help="what a real print and a real active sensor add, each seeded by --seed: joint_play, print_error, "
-        "shadows, flying_pixels, dark_plastic, principal_point, hand, pose_error, clutter; or all (default: none; "
+        "shadows, flying_pixels, dark_plastic, principal_point, hand, pose_error, clutter; all; or a JSON file of "
+        "switches and ranges (a recording's source.effects replays its effects) (default: none; "
         "ranges and sources: docs/sensor_effects.md)",
     )
     p.add_argument(

@@ -25,6 +25,7 @@ import numpy as np
 
 from spare_twin.config import COLORS
 from spare_twin.errors import SpareTwinError
+from spare_twin.io import read_json
 
 #: The effects, in the order they are documented; each is a bool field of `CaptureEffects`.
 EFFECTS = (
@@ -190,11 +191,13 @@ class CaptureEffects:
 
     @classmethod
     def from_dict(cls, d: dict, source: str = "effects") -> CaptureEffects:
+        """From `to_dict`'s form or a recording's `source.effects` (its "on" and "drawn" are ignored:
+        the switches are the bool fields); a missing field keeps its default."""
         if not isinstance(d, dict):
             raise SpareTwinError(f"{source}: expected a JSON object")
-        d = {k: v for k, v in d.items() if k != "on"}
+        d = {k: v for k, v in d.items() if k not in ("on", "drawn")}
         known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - known)
+        unknown = sorted(str(k) for k in set(d) - known)
         if unknown:
             raise SpareTwinError(f"{source}: unknown key(s) {', '.join(unknown)}")
         effects = cls(**d)
@@ -213,8 +216,11 @@ ALL_EFFECTS = CaptureEffects()
 
 
 def parse_effects(text: str, param: str = "effects", base: CaptureEffects = ALL_EFFECTS) -> CaptureEffects:
-    """`all`, `none`, or a comma-separated list of effect names -> `base`'s ranges with those on."""
+    """`all`, `none`, or a comma-separated list of effect names -> `base`'s ranges with those on; or a
+    JSON file (`CaptureEffects.from_dict`: switches and ranges, e.g. a recording's `source.effects`)."""
     text = str(text).strip()
+    if text.endswith(".json"):
+        return CaptureEffects.from_dict(read_json(text), source=text)
     if text == "all":
         return base.only(EFFECTS)
     if text in ("none", ""):
