@@ -116,7 +116,7 @@ class Sample:
     angles_rad: np.ndarray
     """float32 (6,): joint angles in the profile frame's sign, 0 past the last joint."""
     measurement: LayerMeasurement | None = None
-    """The chain measured on the points (`observe.layers`), when asked for."""
+    """The chain measured on the points (`spare_twin.measure.layers`), when asked for."""
 
 
 def rig_sample(
@@ -170,7 +170,7 @@ def stored_sample(
 class ProfileSplit(Dataset):
     """A stored dataset split as the profile network's test samples: one per (sequence, time step),
     the rig's views as they are, observed and measured like any recording (`rig_sample` with no
-    augmentation; `nets.measured` overrules the network with the measurement, as in `predict`).
+    augmentation; `spare_twin.predict.combine` overrules the network with the measurement, as in `predict`).
     Items follow docs/design.md's sample layout with x = the profile image (C, H, W); a time step in
     which the observation finds no chain gets an all-zero image (the network then answers from
     nothing, and the metrics count it)."""
