@@ -95,7 +95,7 @@ def draw_perturbation(n_links: int, effects: CaptureEffects, seed: int) -> Print
     return PrintPerturbation(tilt, shift, scale, level, axis, W)
 
 
-def _origin(el) -> np.ndarray:
+def urdf_origin(el) -> np.ndarray:
     """4x4 of an <origin> element (URDF rpy: R = Rz(yaw) Ry(pitch) Rx(roll))."""
     T = np.eye(4)
     if el is None:
@@ -109,7 +109,7 @@ def _origin(el) -> np.ndarray:
 
 
 def _rpy(R: np.ndarray) -> tuple[float, float, float]:
-    """URDF roll, pitch, yaw of a rotation (inverse of `_origin`'s convention)."""
+    """URDF roll, pitch, yaw of a rotation (inverse of `urdf_origin`'s convention)."""
     pitch = math.asin(max(-1.0, min(1.0, -R[2, 0])))
     if abs(math.cos(pitch)) > 1e-9:
         return math.atan2(R[2, 1], R[2, 2]), pitch, math.atan2(R[1, 0], R[0, 0])
@@ -139,7 +139,7 @@ def perturbed_urdf_bytes(urdf_path: Path, n_links: int, p: PrintPerturbation) ->
             raise SpareTwinError(f"{urdf_path}: no link named {link_name(k)}")
         for tag in ("visual", "collision"):
             for el in link.findall(tag):
-                T = _origin(el.find("origin"))
+                T = urdf_origin(el.find("origin"))
                 T[:3, 3] *= p.scale
                 _set_origin(el, p.W_link_geometry[k] @ T)
                 for mesh in el.iter("mesh"):
@@ -149,7 +149,7 @@ def perturbed_urdf_bytes(urdf_path: Path, n_links: int, p: PrintPerturbation) ->
         j = joints.get(joint_name(k))
         if j is None:
             raise SpareTwinError(f"{urdf_path}: no joint named {joint_name(k)}")
-        T = _origin(j.find("origin"))
+        T = urdf_origin(j.find("origin"))
         T[:3, 3] *= p.scale
         T[0, 3] += p.shift_mm[k - 1, 0] / 1000.0  # the pin's centre moves within its hole, in the parent's plane
         T[2, 3] += p.shift_mm[k - 1, 1] / 1000.0

@@ -25,7 +25,7 @@ from lxml import etree
 from spare_twin.config import COLORS
 from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import ObjectFolder
-from spare_twin.sim.print_physics import _origin
+from spare_twin.sim.print_physics import urdf_origin
 from spare_twin.sim.rig import axis_angle
 from spare_twin.sim.twin import DEFAULT_TABLE_RGBA, Frame, Lighting, Twin
 
@@ -70,7 +70,7 @@ def load_link_meshes(urdf_path: Path, link_names: list[str]) -> list[_Link]:
             mesh = trimesh.load(str(path), force="mesh")
             v, f = _mesh_arrays(mesh)
             v = v * np.asarray([float(s) for s in (mesh_el.get("scale") or "1 1 1").split()])
-            T = _origin(visual.find("origin"))
+            T = urdf_origin(visual.find("origin"))
             verts.append(v @ T[:3, :3].T + T[:3, 3])
             faces.append(f + offset)
             offset += len(v)
@@ -89,7 +89,7 @@ def load_chain_joints(urdf_path: Path, joint_names: list[str]) -> tuple[np.ndarr
         j = by_name.get(name)
         if j is None:
             raise SpareTwinError(f"{urdf_path}: no joint named {name}")
-        origins.append(_origin(j.find("origin")))
+        origins.append(urdf_origin(j.find("origin")))
         axis_el = j.find("axis")
         axis = np.array([float(v) for v in (axis_el.get("xyz") if axis_el is not None else "1 0 0").split()])
         axes.append(axis / np.linalg.norm(axis))

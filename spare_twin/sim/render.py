@@ -173,7 +173,8 @@ def render_recording(
     progress: bool = True,
     force: bool = False,
 ) -> RenderResult:
-    """Load the object's URDF in pybullet, move its joints and record every camera into `out`.
+    """Load the object's URDF in pybullet (or the raycast renderer), move its joints and record every camera into
+    `out`, with the capture effects `cfg.effects` asks for.
 
     With `cfg.empty` the object folder still sets the scene (the motion drawn for it places the clutter
     clear of it, so the empty render is the same scene less the object) but is not put on the table.
