@@ -226,9 +226,16 @@ def import_bag(path: str | Path, out: str | Path, opts: ImportOptions = ImportOp
         raise SpareTwinError(f"{path}: not a readable RealSense .bag file")
     try:
         md = reader.metadata
-        frames = iter(lambda: None if reader.is_eof() else reader.next_frame(), None)
+
+        def frames():
+            while not reader.is_eof():
+                im = reader.next_frame()
+                if im.is_empty():  # the end came while the reader waited for the next frame
+                    return
+                yield im
+
         return stream_to_recording(
-            frames,
+            frames(),
             md,
             out,
             {

@@ -154,7 +154,7 @@ class BagSource(_O3dStream):
         start, t0, k = time.monotonic(), None, 0
         while not stop.is_set() and not self.reader.is_eof():
             im = self.reader.next_frame()
-            if self.reader.is_eof() and im.is_empty():
+            if im.is_empty():  # the end came while the reader waited for the next frame
                 return
             stamp_s = self.reader.get_timestamp() * 1e-6
             t0 = stamp_s if t0 is None else t0
