@@ -256,7 +256,7 @@ def stdout_gone() -> None:
 
 # -- libraries' chatter on stderr ------------------------------------------------------------------------
 
-#: While `library_chatter_held` runs: Python's own stderr (the process's file descriptor 2, now a pipe),
+#: While `library_chatter_held` runs: Python's own stderr (the process's file descriptor 2, now a file),
 #: for the children forked meanwhile (their tracebacks and prints are chatter too).
 _forked_stderr = None
 
@@ -271,22 +271,13 @@ if hasattr(os, "register_at_fork"):
 
 
 class HeldChatter:
-    """What C and C++ libraries (libpng, OpenCV, Open3D, pybullet), Python warnings and worker processes
-    wrote on stderr while a command ran. `keep` says whether it is shown when the command ends."""
+    """Whether what libraries wrote on stderr while a command ran is shown when it ends (`keep`)."""
 
-    #: At most this much is kept: the last bytes, a long run's chatter is not worth the memory.
+    #: At most this much is shown: the last bytes (a long run's chatter is not worth a screenful more).
     LIMIT_BYTES = 1 << 20
 
     def __init__(self) -> None:
         self.keep = True
-        self.chunks: list[bytes] = []
-        self.size_bytes = 0
-
-    def take(self, chunk: bytes) -> None:
-        self.chunks.append(chunk)
-        self.size_bytes += len(chunk)
-        while self.size_bytes > self.LIMIT_BYTES and len(self.chunks) > 1:
-            self.size_bytes -= len(self.chunks.pop(0))
 
 
 def _is_process_stderr(stream) -> bool:
@@ -305,36 +296,30 @@ def library_chatter_held() -> Iterator[HeldChatter]:
     held text is written out if `keep` is still true (a command that succeeded) and dropped otherwise, so
     a failing command says exactly its one line.
 
-    Only for the process's real stderr (the console script): in-process callers with their own
-    `sys.stderr` (tests, notebooks) see no change. Where nothing can be redirected, nothing is held."""
+    The held text goes to an unnamed temporary file, not a pipe: a C library that prints while holding
+    the GIL could block on a full pipe that only a Python thread would empty. Only for the process's real
+    stderr (the console script): in-process callers with their own `sys.stderr` (tests, notebooks) see no
+    change. Where nothing can be redirected, nothing is held."""
     global _forked_stderr
     held = HeldChatter()
     if not _is_process_stderr(sys.stderr):
         yield held
         return
+    import tempfile  # here: it imports random and shutil, which --help need not wait for
+
     process_stderr = sys.stderr
     try:
         process_stderr.flush()
         _flush_c_stdio()
-        terminal_fd = os.dup(2)
-        read_fd, write_fd = os.pipe()
+        held_file = tempfile.TemporaryFile()
     except OSError:
         yield held
         return
-    os.dup2(write_fd, 2)
-    os.close(write_fd)
-
-    def drain() -> None:
-        with contextlib.suppress(OSError):
-            while chunk := os.read(read_fd, 65536):
-                held.take(chunk)
-        os.close(read_fd)
-
-    reader = threading.Thread(target=drain, name="spare-twin-held-stderr", daemon=True)
-    reader.start()
+    terminal_fd = os.dup(2)
+    os.dup2(held_file.fileno(), 2)
     encoding = getattr(process_stderr, "encoding", None) or "utf-8"
     sys.stderr = open(terminal_fd, "w", encoding=encoding, errors="backslashreplace", closefd=False, buffering=1)
-    _forked_stderr = process_stderr
+    _forked_stderr = process_stderr  # forked workers' Python output is chatter too
     try:
         with warnings.catch_warnings():
             warnings.showwarning = _warning_to_fd2
@@ -342,14 +327,17 @@ def library_chatter_held() -> Iterator[HeldChatter]:
     finally:
         with contextlib.suppress(OSError, ValueError):
             sys.stderr.flush()
+            process_stderr.flush()
         _flush_c_stdio()
         sys.stderr, _forked_stderr = process_stderr, None
-        os.dup2(terminal_fd, 2)  # closes the pipe's writing end here: the reader sees its end ...
-        reader.join(timeout=0.5)  # ... unless a worker still holds it; then what came so far
-        if held.keep and held.chunks:
-            with contextlib.suppress(OSError):
-                os.write(2, b"".join(held.chunks))
+        os.dup2(terminal_fd, 2)
         os.close(terminal_fd)
+        with contextlib.suppress(OSError), held_file:
+            size_bytes = held_file.seek(0, os.SEEK_END)
+            if held.keep and size_bytes:
+                held_file.seek(max(size_bytes - held.LIMIT_BYTES, 0))
+                with open(2, "wb", closefd=False) as terminal:
+                    terminal.write(held_file.read())
 
 
 def _warning_to_fd2(message, category, filename, lineno, file=None, line=None) -> None:
