@@ -83,7 +83,11 @@ def make_source(ws: Path, sources: dict) -> None:
 
 
 def make_imported(ws: Path, sources: dict) -> None:
+    """The imported recording, with what a user adds to it: register updates it in place and must keep them."""
     shutil.copytree(sources["imported"], ws / "rec")
+    (ws / "rec" / ".notes.txt").write_text("notes\n")
+    (ws / "rec" / "notes_link").symlink_to(".notes.txt")
+    (ws / "rec" / "empty").mkdir()
 
 
 JOBS = {
@@ -185,6 +189,8 @@ def test_killed_runs_leave_old_output_and_rerun_matches(name, sources, tmp_path)
     setup(ws, sources)
     _, timeline = run_watched(argv, ws)
     reference = tree(ws / job.out)
+    if job.in_place:  # what the user added before the update is still there (then after every kill and rerun)
+        assert {".notes.txt", "notes_link", "empty"} <= set(reference) and (ws / job.out / "notes_link").is_symlink()
     rng = random.Random(f"spare-twin kills {name}")
     kills = tries = 0
     while kills < KILLS_PER_COMMAND:

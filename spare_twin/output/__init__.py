@@ -16,9 +16,10 @@ file win). A marker of an older version ("spare-twin-output/1") lists nothing, a
 files from the user's: the new output replaces it only if it writes every path the earlier one holds,
 so no file of the user's is dropped and no stale file of the command's (a frame past the new end of a
 recording, say) is mixed into the new output; otherwise the run is refused, and `force` replaces it
-whole. A resumable run starts from the earlier output's own files, and an in-place update
-(`in_place=True`: a registration written into a recording) starts from everything in the folder;
-either way the marker then lists the earlier output's files and those the run wrote.
+whole. A resumable run starts from the earlier output's own files (all of an older marker's output,
+which it then lists as its own), and an in-place update (`in_place=True`: a registration written into
+a recording) starts from everything in the folder; either way the marker then lists the earlier
+output's files and those the run wrote. (`trees`: the copies; `process`: owners beyond the pid.)
 
 `writing` builds the output beside its destination under a hidden temporary name and swaps it in only
 when it is complete (an atomic exchange where the file system has one, else rename aside and rename in,
@@ -33,7 +34,6 @@ which a reboot or a long uptime hands to another process: `<pid>-<start time in 
 whose swap was cut short); `writing` calls it first, so the next run cleans up after a killed one. A
 resumable run adopts the partial output a killed run left. Older temporaries and locks name only a pid:
 they count as their owner's while that pid runs a process started before they were last written.
-
 """
 
 from __future__ import annotations
