@@ -207,12 +207,12 @@ def test_a_garbled_png_is_one_line_without_libpngs_own(small_rec, tmp_path):
 
 
 #: Runs `spare-twin ARGV` with TARGET made to talk as libraries do (a Python warning, numpy's
-#: RuntimeWarning, C code's fprintf on stderr, a child process's output) and then do WHAT: "work"
-#: (the real call), "fail" (a SpareTwinError), or raise the named exception ("TypeError", "MemoryError",
-#: "RecursionError", "numpy-allocation").
+#: RuntimeWarning, C code's fprintf on stderr, a child process's output, a forked worker's traceback)
+#: and then do WHAT: "work" (the real call), "fail" (a SpareTwinError), or raise the named exception
+#: ("TypeError", "MemoryError", "RecursionError", "KeyboardInterrupt", "numpy-allocation").
 TALKING_LIBRARY = textwrap.dedent(
     """
-    import ctypes, importlib, os, subprocess, sys, warnings
+    import ctypes, importlib, os, subprocess, sys, traceback, warnings
     import numpy as np
     from spare_twin import SpareTwinError
     from spare_twin.cli import main
@@ -229,6 +229,15 @@ TALKING_LIBRARY = textwrap.dedent(
         libc = ctypes.CDLL(None)
         libc.dprintf(2, b"[ WARN:0@0.1] global loadsave.cpp (1): C code's warning\\n")
         subprocess.run([sys.executable, "-c", "import sys; print('a worker says', file=sys.stderr)"])
+        pid = os.fork()  # a forked worker's traceback, as multiprocessing prints it on Ctrl-C
+        if pid == 0:
+            try:
+                raise RuntimeError("a forked worker's error")
+            except RuntimeError:
+                traceback.print_exc()
+            sys.stderr.flush()
+            os._exit(0)
+        os.waitpid(pid, 0)
         if what == "work":
             return real(*args, **kwargs)
         if what == "fail":
@@ -267,7 +276,7 @@ def test_warnings_and_chatter_around_an_error_leave_one_line(tmp_path):
 def test_warnings_and_chatter_of_a_command_that_works_are_still_shown(tmp_path, whole_object):
     p = talking("work", tmp_path)
     assert p.returncode == 0, p.stderr[-2000:]
-    for said in ("a library's own warning", "divide by zero", "C code's warning", "a worker says"):
+    for said in ("a library's own warning", "divide by zero", "C code's warning", "a worker says", "worker's error"):
         assert said in p.stderr
     assert files(tmp_path / "o") == whole_object
 
@@ -288,6 +297,11 @@ def test_an_unexpected_exception_is_one_line(what, says, tmp_path):
     p = talking(what, tmp_path)
     assert one_error_line(p).startswith(f"spare-twin object: error: {says}")
     assert not (tmp_path / "o").exists()
+
+
+def test_ctrl_c_is_one_line_without_the_workers_tracebacks(tmp_path):
+    p = talking("KeyboardInterrupt", tmp_path)
+    assert one_error_line(p, code=130) == "spare-twin object: interrupted"
 
 
 def test_debug_shows_the_traceback(tmp_path):
