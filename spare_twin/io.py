@@ -96,6 +96,33 @@ def read_json(path: str | Path):
     return parse_json(text, str(path))
 
 
+def read_npy(path: str | Path) -> np.ndarray:
+    """A user's .npy file (no pickles), its header checked against the file's size before numpy allocates
+    for it; a missing, truncated or garbled file is one line naming it."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            version = np.lib.format.read_magic(f)
+            if version not in ((1, 0), (2, 0)):  # what np.save writes; 3.0 only adds unicode field names
+                raise ValueError(f"format version {version[0]}.{version[1]}")
+            read_header = (
+                np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+            )
+            shape, _, dtype = read_header(f)
+            need = int(np.prod(shape, dtype=object)) * dtype.itemsize
+            have = path.stat().st_size - f.tell()
+            if dtype.hasobject:
+                raise ValueError("it holds Python objects, which are not read")
+            if need > have:
+                raise ValueError(f"the header promises {need:,} bytes of {dtype} {shape}, the file holds {have:,}")
+            f.seek(0)
+            return np.load(f, allow_pickle=False)
+    except FileNotFoundError:
+        raise SpareTwinError(f"{path}: no such file") from None
+    except Exception as exc:  # numpy's header parser raises ValueError, SyntaxError, tokenize errors...
+        raise SpareTwinError(f"{path}: not a readable .npy file ({' '.join(str(exc).split())[:160]})") from None
+
+
 @contextmanager
 def atomic_dir(final: str | Path, overwrite: bool = True):
     """Yield a temporary sibling folder; on success it replaces `final` in one rename.

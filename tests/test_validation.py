@@ -567,3 +567,22 @@ def test_open3d_intrinsics_file(meta, words, tmp_path, capsys, monkeypatch):
         assert code == 0, err
     else:
         refused(argv, capsys, tmp_path, "intrinsic.json", words)
+
+
+@pytest.mark.parametrize(
+    "spoil",
+    [
+        lambda raw: raw[:44] + bytes(len(raw) - 44),  # the header's dict literal cut short by zeros
+        lambda raw: raw[:100],  # truncated
+        lambda raw: raw.replace(b"'shape': (2, 4, 4)", b"'shape': (999999999999, 4, 4)"),  # a lying header
+    ],
+    ids=["header-zeroed", "truncated", "header-promises-terabytes"],
+)
+def test_a_spoiled_pose_file_is_one_line(spoil, tiny_rec, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    shutil.copytree(tiny_rec / "hand", tmp_path / "rec")
+    p = tmp_path / "rec" / "cameras" / "cam0" / "T_world_camera.npy"
+    raw = p.read_bytes()
+    assert spoil(raw) != raw
+    p.write_bytes(spoil(raw))
+    refused(["capture", "register", "rec"], capsys, tmp_path, "T_world_camera.npy", "not a readable .npy file")

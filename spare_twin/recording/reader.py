@@ -4,15 +4,13 @@ from __future__ import annotations
 
 import json
 import math
-import pickle
-import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import read_json, read_png, write_bytes_atomic
+from spare_twin.io import read_json, read_npy, read_png, write_bytes_atomic
 from spare_twin.recording.format import (
     FORMAT,
     MAX_FRAMES,
@@ -186,7 +184,7 @@ class Recording:
         try:
             with np.load(p, allow_pickle=False) as z:
                 return {k: z[k] for k in z.files}
-        except (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
+        except Exception as exc:  # zip, npy header (ValueError, SyntaxError, tokenize errors), zlib...
             raise SpareTwinError(f"{p}: not a readable .npz file ({_one_line(exc)})") from None
 
     def write_ground_truth(self, arrays: dict[str, np.ndarray]) -> None:
@@ -272,10 +270,7 @@ def _check_meta(meta, meta_path: Path) -> None:
 
 def _load_poses(p: Path, frames: int) -> np.ndarray:
     """A (frames, 4, 4) array of rigid camera-to-world poses from `p` (the writer refuses any other)."""
-    try:
-        poses = np.load(p, allow_pickle=False)
-    except (OSError, ValueError, EOFError, pickle.UnpicklingError) as exc:
-        raise SpareTwinError(f"{p}: not a readable .npy file ({_one_line(exc)})") from None
+    poses = read_npy(p)  # header checked against the file size; any parse failure is one line
     if not isinstance(poses, np.ndarray) or poses.dtype.kind not in "fiu":
         raise SpareTwinError(f"{p}: expected a numeric array of poses")
     if poses.shape != (frames, 4, 4):
