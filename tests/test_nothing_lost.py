@@ -108,6 +108,11 @@ def test_register_keeps_every_file_it_did_not_write(tmp_path, capsys):
     assert not any(_users(f, "cameras/cam0/color") for f in files)
     assert temporaries(tmp_path) == []
 
+    (rec / "object.ply").write_text("my own scan")  # a registration without an object would remove it
+    before = snapshot(tmp_path)
+    err = one_line_error(*run_cli(["capture", "register", str(rec), "--object", "skip"], capsys)[::2])
+    assert f"{rec}/object.ply: not written by spare-twin" in err and snapshot(tmp_path) == before
+
 
 def test_compare_registers_its_real_recording_keeping_the_users_files(
     printed_object, handheld_rec, tmp_path, capsys, monkeypatch

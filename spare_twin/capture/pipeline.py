@@ -17,6 +17,7 @@ World frame: the reference world when reference poses were used, else the first 
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,10 +29,13 @@ from spare_twin.capture.fusion import FusionConfig, fuse_frames, mesh_ply_bytes,
 from spare_twin.capture.registration import RegistrationConfig, register_frames
 from spare_twin.capture.segment import SegmentConfig, find_object
 from spare_twin.errors import SpareTwinError
+from spare_twin.output import own_files
 from spare_twin.recording import REFERENCE_POSES, Recording, Registration, npy_bytes, update_recording
 from spare_twin.recording.writer import check_updatable
 
 FIND = ("auto", "require", "skip")
+#: The files a registration writes, or removes where this one has none (a stale object must not outlive it).
+RESULT_FILES = ("fused.ply", "fused_mesh.ply", "object.ply")
 
 
 @dataclass(frozen=True)
@@ -91,6 +95,7 @@ def register_recording(
     rec.camera(cam)
     # refused now, not after the registration: the results go into the folder
     check_updatable(rec.root, writes=[f"cameras/{cam}/T_world_camera.npy"])
+    _refuse_users_files(rec, RESULT_FILES)
     # the poses it came with, not those of an earlier registration: registering again gives the same result
     ref = rec.reference_poses(cam)
     use_ref = bool(use_reference and ref is not None)
@@ -137,7 +142,7 @@ def register_recording(
     )
     meta["registration"] = registration.to_dict()
     # a stale object.ply from an earlier run must not outlive this result
-    update_recording(rec.root, meta, files, remove=tuple(f for f in ("object.ply", "fused_mesh.ply") if f not in files))
+    update_recording(rec.root, meta, files, remove=tuple(f for f in RESULT_FILES if f not in files))
     src_names = rec.source.get("source_frames")
     return RegisterResult(
         recording=rec.root,
@@ -146,6 +151,23 @@ def register_recording(
         registration=registration,
         source_frames=tuple(src_names) if src_names and len(src_names) == rec.n_frames else None,
     )
+
+
+def _refuse_users_files(rec: Recording, names: tuple[str, ...]) -> None:
+    """The results replace or remove these files: refused where one is the user's (neither listed as
+    spare-twin's by the folder's marker nor named by its registration). An older marker lists nothing:
+    then they count as spare-twin's, as before."""
+    own = own_files(rec.root)
+    if own is None:
+        return
+    reg = rec.registration
+    named = {reg.fused, reg.mesh, reg.object_file} if reg else set()
+    for name in names:
+        if os.path.lexists(rec.root / name) and name not in own and name not in named:
+            raise SpareTwinError(
+                f"{rec.root / name}: not written by spare-twin, and registering writes its results there; "
+                "move it out of the recording"
+            )
 
 
 def _cfg_dict(cfg) -> dict:

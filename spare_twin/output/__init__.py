@@ -65,6 +65,7 @@ __all__ = [
     "clean_stale",
     "output_command",
     "output_files",
+    "own_files",
     "process_alive",
     "process_token",
     "token_alive",
@@ -464,10 +465,10 @@ def _missing_parents(final: Path) -> list[Path]:
     return missing[::-1]
 
 
-def _listed_before(final: Path) -> set[str] | None:
-    """The earlier output's own files as its marker lists them; none where it has no marker (a folder
-    of the user's, updated in place); None where an older marker does not list them."""
-    return output_files(final) if _marker(final) else set()
+def own_files(folder: str | Path) -> set[str] | None:
+    """The paths spare-twin wrote into `folder`, as its marker lists them; none where it has no marker
+    (a folder of the user's, updated in place); None where an older marker does not list them."""
+    return output_files(folder) if _marker(folder) else set()
 
 
 @contextlib.contextmanager
@@ -503,7 +504,7 @@ def writing(
         for folder in created:
             os.mkdir(folder)
         clean_stale(final, keep_partial=resumable)
-        listed = _listed_before(final) if in_place else None
+        listed = own_files(final) if in_place else None
         tmp, copied = _claim(final, kind, resumable, in_place)
     except OSError as exc:
         _remove_empty(created)
