@@ -89,6 +89,34 @@ def test_foreign_folder_refused_and_force_replaces_it(tmp_path):
     assert sorted(p.name for p in mine.iterdir()) == [MARKER, "x.txt"]
 
 
+def test_users_entries_are_carried_and_merged_into_the_new_output(tmp_path):
+    out = tmp_path / "rec"
+    write_output(out, {"a/x.txt": "1", "e/g.txt": "g"})
+    (out / "a" / "mine.txt").write_text("m")  # inside a folder of the command's
+    (out / "b").mkdir()  # a folder of the user's, which the next output has too: merged
+    (out / "b" / "y.txt").write_text("y")
+    write_output(out, {"a/x.txt": "2", "b/z.txt": "z"})
+    assert {p: (out / p).read_text() for p in ("a/x.txt", "a/mine.txt", "b/y.txt", "b/z.txt")} == {
+        "a/x.txt": "2",
+        "a/mine.txt": "m",
+        "b/y.txt": "y",
+        "b/z.txt": "z",
+    }
+    assert not (out / "e").exists()  # the command's own, not written again
+    assert json.loads((out / MARKER).read_text())["files"] == ["a", "a/x.txt", "b", "b/z.txt"]
+    (out / "b" / "w.txt").mkdir()  # a folder of the user's where the next output writes a file
+    before = tree(tmp_path)
+    with pytest.raises(OutputRefused, match="holds b/w.txt, which render did not write there") as info:
+        write_output(out, {"b/w.txt": "w"})
+    assert info.value.replaceable and tree(tmp_path) == before and temporaries(tmp_path) == []
+    (out / "b" / "w.txt").rmdir()
+    (out / "a" / "mine.txt").rename(out / "a" / "sub")
+    with pytest.raises(OutputRefused, match="holds a/sub"):  # where the new output has a file, not a folder
+        write_output(out, {"a": "now a file"})
+    write_output(out, {"a": "now a file"}, force=True)  # force: the new output wins, the rest is kept
+    assert (out / "a").read_text() == "now a file" and (out / "b" / "y.txt").read_text() == "y"
+
+
 def test_other_commands_output_and_files_are_refused(tmp_path):
     rec = tmp_path / "rec"
     write_output(rec, {"recording.json": "{}"}, command="capture import")
