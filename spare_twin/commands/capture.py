@@ -86,7 +86,8 @@ def register(sub) -> None:
         "register",
         help="estimate camera poses, fuse (TSDF) and find the object",
         description="Registers one camera's frames (FPFH+RANSAC, ICP, pose graph), fuses them into "
-        "fused.ply and segments the object on the table; results are written into the recording atomically.",
+        "fused.ply and segments the object on the table; results are written into the recording atomically, "
+        "everything else in it kept as it was (run it from outside the recording's folder).",
     )
     g.add_argument("rec", help="recording folder")
     g.add_argument("--camera", default=None, help="camera to register (default: the first)")
