@@ -38,7 +38,8 @@ def replayed(sweep, tmp_path_factory):
     root = tmp_path_factory.mktemp("live")
     out, rrd = root / "rec", root / "live.rrd"
     argv = ["live", "--replay", str(sweep), "--speed", "0", "--jsonl", "--rrd", str(rrd), "--out", str(out)]
-    cmd = [str(SPARE_TWIN), *argv, "--update-s", "0.2", "--stable-s", "0.3"]
+    # 16 views an update (default 8, for the rate): the last update then reads every frame, as predict does
+    cmd = [str(SPARE_TWIN), *argv, "--update-s", "0.2", "--stable-s", "0.3", "--views", "16"]
     live = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert live.returncode == 0, live.stderr[-2000:]
     predict = subprocess.run([str(SPARE_TWIN), "predict", str(out), "--json"], capture_output=True, text=True)
@@ -79,11 +80,36 @@ def test_the_recording_holds_every_frame_of_the_stream(replayed, sweep):
     assert rec.depth_scale == src.depth_scale and np.allclose(rec.cameras[0].K, src.cameras[0].K)
 
 
-def test_enough_is_said_once_the_answer_held(replayed):
+def test_enough_needs_the_answer_held_with_strong_evidence():
+    """`held_for_s` and `is_strong`, which say "enough", on updates made up here (a replay's timing
+    decides how many real updates there are)."""
+    from spare_twin.live.estimate import STRONG_RMS_M, is_strong
+    from spare_twin.live.session import Update, enough_words, held_for_s
+    from spare_twin.predict.estimate import Estimate, MeasurementEvidence, Prediction
+
+    def update(t_s, n, lengths, rms_m=0.0005):
+        m = Estimate(n, lengths, (0.1,) * n, MeasurementEvidence(rms_m, (500, 300, 200))) if n else None
+        answer = m or Estimate.none("no chain in view")
+        source = {"n_links": "measurement"} if n else None
+        pred = Prediction(answer, source, None, m, "measurement", "test", None, "rec", 0.08)
+        return Update(pred, t_s, t_s, 8, 10, 10, 0)
+
+    a, b = (1.5, 0.8, 0.7), (1.5, 0.81, 0.7)  # within STABLE_LENGTHS_PU of each other
+    ups = [update(0.0, None, None), update(1.0, 2, a), update(2.5, 2, b), update(4.5, 2, a)]
+    assert held_for_s(ups[:2]) == 0.0 and held_for_s(ups[:3]) == 1.5 and held_for_s(ups) == 3.5
+    assert held_for_s([*ups, update(5.0, 3, (1.5, 0.8, 0.7, 0.4))]) == 0.0  # the count changed: starts again
+    assert held_for_s([*ups, update(5.0, 2, (1.5, 0.9, 0.7))]) == 0.0  # a length moved 0.1 pu
+    assert is_strong(ups[1].prediction) and not is_strong(ups[0].prediction)
+    assert not is_strong(update(1.0, 2, a, rms_m=2 * STRONG_RMS_M).prediction)  # blurred: not strong
+    assert enough_words(ups[-1]).startswith("enough: n = 2, lengths 1.500, 0.800, 0.700")
+
+
+def test_enough_in_the_replay_agrees_with_the_final_answer(replayed):
     lines, _, _, _, stderr = replayed
     enough = [u for u in lines if u["enough"]]
-    assert len(enough) == 1 and enough[0]["n_links"] == 2
-    assert "enough: n = 2, lengths" in stderr
+    assert len(enough) <= 1 and stderr.count("enough: n = ") == len(enough)
+    for u in enough:
+        assert u["n_links"] == lines[-1]["n_links"]
 
 
 def test_the_rrd_is_accepted_by_rerun_and_poses_the_urdf_twin(replayed):
@@ -104,27 +130,29 @@ def test_the_rrd_is_accepted_by_rerun_and_poses_the_urdf_twin(replayed):
 
 def test_until_stable_stops_the_stream_at_enough(sweep, tmp_path, capsys):
     out = tmp_path / "rec"
-    argv = ["live", "--replay", str(sweep), "--speed", "0", "--no-viewer", "--jsonl", "--out", str(out)]
-    code, stdout, err = run_cli([*argv, "--update-s", "0.2", "--stable-s", "0.2", "--until-stable"], capsys)
+    # a frame every second: the answer holds for 0.3 s of the stream (3 frames) before its 16 frames are in
+    argv = ["live", "--replay", str(sweep), "--speed", "0.1", "--no-viewer", "--jsonl", "--answer", "measurement"]
+    code, stdout, err = run_cli([*argv, "--update-s", "0.2", "--stable-s", "0.3", "--until-stable", "--out", str(out)],
+                                capsys)  # fmt: skip
     assert code == 0, err
     from spare_twin.recording import Recording
 
     *updates, final = [json.loads(line) for line in stdout.splitlines()]
     assert updates[-1]["enough"] and not any(u["enough"] for u in updates[:-1])  # no update after enough
-    assert final["final"] and Recording.open(out).n_frames == final["frames_received"]
-    assert "enough: n = " in err
+    assert final["final"] and Recording.open(out).n_frames == final["frames_received"] < 16
+    assert "enough: n = 2" in err
 
 
 def test_sigint_mid_replay_leaves_a_recording_predict_reads(sweep, tmp_path):
     out = tmp_path / "rec"
-    cmd = [str(SPARE_TWIN), "live", "--replay", str(sweep), "--speed", "0.1", "--no-viewer", "--jsonl"]
+    cmd = [str(SPARE_TWIN), "live", "--replay", str(sweep), "--speed", "0.2", "--no-viewer", "--jsonl"]
     proc = subprocess.Popen(
         [*cmd, "--answer", "measurement", "--update-s", "0.3", "--out", str(out)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
     )
-    first = proc.stdout.readline()  # the first update: frames are coming in (one every second)
+    first = proc.stdout.readline()  # the first update: frames are coming in (two a second)
     assert first, proc.stderr.read()[-2000:]
     proc.send_signal(signal.SIGINT)
     rest, err = proc.communicate(timeout=300)
