@@ -66,7 +66,8 @@ def recording_views(
     max_frames: int = 60,
     progress: bool = False,
 ) -> PosedViews:
-    """The posed views of a recording; see the module doc."""
+    """The posed views of a recording; see the module doc. `frame` applies to several posed cameras
+    only, `camera` picks one camera to read as a sweep."""
     if frame is not None and not 0 <= frame < rec.n_frames:
         raise SpareTwinError(f"frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
     posed = [c for c in rec.cameras if rec.camera_poses(c.name) is not None]
@@ -79,6 +80,11 @@ def recording_views(
         ]
         return PosedViews(tuple(views), "cameras", frames_in_recording=rec.n_frames)
     cam = rec.camera(camera or rec.cameras[0].name)
+    if frame is not None:  # a sweep is read whole: a frame number would be silently ignored
+        raise SpareTwinError(
+            f"frame {frame}: applies to a recording from several posed cameras (every camera at that time "
+            f"step); camera {cam.name} is read as a sweep, {min(max_frames, rec.n_frames)} of its frames"
+        )
     picks = np.unique(np.linspace(0, rec.n_frames - 1, min(max_frames, rec.n_frames)).round().astype(int)).tolist()
     poses = rec.camera_poses(cam.name)
     if poses is None:
