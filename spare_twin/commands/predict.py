@@ -12,7 +12,8 @@ def register(sub) -> None:
         description="Count and measure the chain in a recording folder. Two estimators run: the layer measurement "
         "on the object's points (no network) and a network (default: the shipped yaw-free profile network). "
         "--answer combined (the default) is the measurement where it finds a chain and the network's estimate "
-        "elsewhere (image networks: the network's estimate, no answer where nothing on the table is a chain). "
+        "elsewhere (image networks: the network's estimate; outside their training rig, no answer where the "
+        "measurement finds no chain). "
         "--json prints version 2 of spare-twin-prediction: n_links, link_lengths_pu (n + 1 values, base first, "
         "paper units), link_lengths_mm (at the print scale used), joint_angles_rad, source (which estimate gave "
         "which field), then each estimate with its evidence under network and measurement (null where not run); "
@@ -27,7 +28,11 @@ def register(sub) -> None:
     )
     p.add_argument("--model", metavar="CKPT", help="checkpoint (default: models/'s predict model, the profile network)")
     p.add_argument("--frame", type=int, help="time step of a multi-camera recording (default: the middle frame)")
-    p.add_argument("--camera", help="camera of a one-camera sweep or a temporal model (default: the first)")
+    p.add_argument(
+        "--camera",
+        help="read this one camera as a sweep of its frames, or give it to a temporal model (default: every posed "
+        "camera at one time step where there are several, else the only one)",
+    )
     p.add_argument(
         "--print-scale",
         type=float,

@@ -116,7 +116,8 @@ class Prediction:
     network: Estimate | None
     """The network's own estimate; None where no network ran (`--answer measurement`, no chain in view)."""
     measurement: Estimate | None
-    """The measurement's own estimate; None where it was not run (`--answer network`)."""
+    """The measurement's own estimate; None where it was not run (an image network with `--answer
+    network`, or in its training rig)."""
     answer_kind: str
     """What was asked for: one of `ANSWERS`."""
     input: str

@@ -174,7 +174,7 @@ def answer_of(
         network_input=obs.profile.image,
         T_world_profile=obs.T_world_profile,
     )
-    measurement = measurement_estimate(obs, m) if answer != "network" else None
+    measurement = measurement_estimate(obs, m)  # measured whatever the answer: its evidence holds the network too
     if obs.reason is not None:  # nothing to show the network: the answer is no answer, whichever was asked
         none = Estimate.none(f"no chain in view: {obs.reason}")
         timings = {**obs.timings_s, "network": 0.0}
