@@ -119,6 +119,12 @@ def test_comparison_rrd_verifies(tmp_path):
 
     md = summary_markdown(result)
     assert "| real (predict alone) | 1 |" in md and "| diagnostic: real, twin-aligned | 2 |" in md
+    # each estimate beside the answer, as predict --json gives them
+    result["real"]["network"] = {"n_links": 3, "link_lengths_pu": [1.4, 0.5, 0.5, 0.3]}
+    result["real"]["measurement"] = {"n_links": None, "link_lengths_pu": None, "reason": "no chain measured: x"}
+    md = summary_markdown(result)
+    assert "| real (predict alone): network alone | 3 | 1.400, 0.500, 0.500, 0.300 | | |" in md
+    assert "| real (predict alone): measurement alone | none (no chain measured: x) | - | | |" in md
 
 
 def _prediction(n, lengths, angles=None, method="posed"):
