@@ -110,7 +110,8 @@ def predict_recording(
         _refuse(n_links, "n_links", "applies to lengths-only models only; this answer counts the links itself")
         rec = Recording.open(rec_dir)
         seen = recording_views(rec, frame, camera, progress=progress)
-        return predict_views(seen, model, net, str(model_path) if model_path else None, answer, scale, device, rec_dir)
+        name = str(model_path) if model_path else None
+        return predict_views(seen, model, net, name, answer, scale, device, rec_dir, progress)
     if net.arch != "conv3d_per_n":
         _refuse(n_links, "n_links", f"applies to lengths-only models only; {Path(model_path).name} counts the links")
     return predict_images(
