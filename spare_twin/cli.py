@@ -121,11 +121,10 @@ def _run(args: argparse.Namespace, debug: bool) -> int:
         message = exc.message("--force") if isinstance(exc, OutputRefused) else str(exc)
         _say(f"{failed} {_one_line(message)}")
         return 1
-    except BrokenPipeError:  # stdout is a pipe whose reader ended (`| head -1`): what the command printed is lost
-        stdout_gone()
-        _say(f"{failed} stdout: the pipe's reader ended before the command had printed everything (broken pipe)")
-        return 1
     except OSError as exc:  # the file system said no where no library check did: still one line, naming the file
+        if isinstance(exc, BrokenPipeError) and stdout_gone():  # stdout's reader ended (`| head -1`)
+            _say(f"{failed} stdout: the pipe's reader ended before the command had printed everything (broken pipe)")
+            return 1
         where = f"{exc.filename}: " if exc.filename else ""
         _say(f"{failed} {where}{exc.strerror or exc}")
         return 1

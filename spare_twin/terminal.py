@@ -244,14 +244,17 @@ def environment_problem() -> str | None:
     return None
 
 
-def stdout_gone() -> None:
-    """After a broken pipe on stdout: point file descriptor 1 at /dev/null, so that the interpreter's
-    last flush at exit does not add an "Exception ignored ... BrokenPipeError" to the one-line error."""
+def stdout_gone() -> bool:
+    """Whether a broken pipe was stdout's (a pipe whose reader ended), not another pipe's. If so, file
+    descriptor 1 now points at /dev/null, so that the interpreter's last flush at exit does not add an
+    "Exception ignored ... BrokenPipeError" to the one-line error."""
     with contextlib.suppress(OSError, AttributeError, ValueError, io.UnsupportedOperation):
-        if sys.stdout is sys.__stdout__:
+        if sys.stdout is sys.__stdout__ and _pipe_without_reader(sys.stdout.fileno()):
             devnull = os.open(os.devnull, os.O_WRONLY)
             os.dup2(devnull, sys.stdout.fileno())
             os.close(devnull)
+            return True
+    return False
 
 
 # -- libraries' chatter on stderr ------------------------------------------------------------------------
