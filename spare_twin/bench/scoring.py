@@ -1,0 +1,258 @@
+"""Scoring the sim-to-real bench: one answer against the truth (`score_prediction`), and the table of
+every answer kind (combined, the measurement, each network alone) on every side (sim rig, sim through
+the capture's cameras, real), overall and per n (`bench_table`), as Markdown and a plot.
+
+Wrong answers (a count that is not the true one) are counted apart from no answers (`n_links: null`);
+a network that refused a capture (it cannot read that kind of capture) is counted as refused and
+scored on nothing, neither right nor wrong.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from spare_twin.bench.capture import SIDE_TITLES, SIDES
+from spare_twin.config import LABEL_SLOTS
+from spare_twin.io import encode_png, write_bytes_atomic
+from spare_twin.nets.metrics import length_errors
+
+#: The answer kinds before the networks: `predict`'s combined answer and the measurement alone.
+COMBINED, MEASUREMENT = "combined", "measurement"
+
+
+def _wrap_rad(a: np.ndarray) -> np.ndarray:
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _slots(lengths) -> np.ndarray:
+    v = np.zeros(LABEL_SLOTS)
+    if lengths is not None:
+        lengths = np.asarray(lengths, dtype=np.float64)[:LABEL_SLOTS]
+        v[: len(lengths)] = lengths
+    return v
+
+
+def score_prediction(truth: dict, pred: dict) -> dict:
+    """One answer against the truth; both dicts with `n_links` (None: no answer), `link_lengths_pu`
+    (n + 1 paper-unit lengths, base first) and `joint_angles_rad` (n, or None).
+
+    - `count_correct`: the count is the true one; `answered`: a count was given (no answer is not right,
+      and not a wrong count either: the table counts the two apart);
+    - `E_L`: end to end over the paper's 7 slots (docs/design.md): the truth zero past the true count,
+      the prediction zero past the predicted one (no answer: all zero), sum of squared differences;
+    - `joint_angle_error_deg`: only when the count is right and both angles are known: mean absolute
+      difference (wrapped to +-180 deg) over the joints. A planar chain seen from the other side is its
+      own mirror image with every angle negated, so the angles are known up to one global sign: the
+      better sign is taken (`joint_angle_sign`)."""
+    true_n, pred_n = int(truth["n_links"]), pred.get("n_links")
+    err = length_errors(
+        _slots(truth["link_lengths_pu"])[None],
+        _slots(pred.get("link_lengths_pu") if pred_n else None)[None],
+        np.array([true_n]),
+        np.array([pred_n or 0]),
+    )
+    out = {"count_correct": pred_n == true_n, "answered": pred_n is not None, "E_L": float(err[0])}
+    out.update(joint_angle_error_deg=None, joint_angle_sign=None)
+    angles, true_angles = pred.get("joint_angles_rad"), truth.get("joint_angles_rad")
+    if out["count_correct"] and angles is not None and true_angles is not None and len(angles) == true_n:
+        a, t = np.asarray(angles, dtype=np.float64), np.asarray(true_angles, dtype=np.float64)
+        errors = {sign: float(np.degrees(np.abs(_wrap_rad(t - sign * a))).mean()) for sign in (1, -1)}
+        sign = min(errors, key=lambda s: (errors[s], -s))
+        out["joint_angle_error_deg"], out["joint_angle_sign"] = errors[sign], sign
+    return out
+
+
+def _mean(values: list) -> float | None:
+    values = [v for v in values if v is not None]
+    return float(np.mean(values)) if values else None
+
+
+def answer_stats(answers: list[dict]) -> dict:
+    """Figures of one answer kind on one side over `answers` (each with `score`, or `refused`):
+    count accuracy, wrong and no answers (counts), E_L and the joint-angle error over the scored ones."""
+    scored = [a["score"] for a in answers if not a.get("refused")]
+    angles = [s["joint_angle_error_deg"] for s in scored if s["joint_angle_error_deg"] is not None]
+    return {
+        "objects": len(scored),
+        "refused": len(answers) - len(scored),
+        "count_accuracy": float(np.mean([s["count_correct"] for s in scored])) if scored else None,
+        "wrong": sum(s["answered"] and not s["count_correct"] for s in scored),
+        "none": sum(not s["answered"] for s in scored),
+        "E_L": _mean([s["E_L"] for s in scored]),
+        "joint_angle_error_deg": _mean(angles),
+        "joint_angle_objects": len(angles),
+    }
+
+
+def _stats(results: list[dict], rows: list[str]) -> dict:
+    return {
+        row: {side: answer_stats([r["sides"][side]["answers"][row] for r in results]) for side in SIDES} for row in rows
+    }
+
+
+def _times(results: list[dict]) -> dict:
+    wall = [r["times_s"]["predict"]["real"][COMBINED] for r in results]
+    return {"predict_combined_real_s": {"mean": _mean(wall), "max": float(max(wall)) if wall else None}}
+
+
+def _gap(stats: dict) -> float | None:
+    sim, real = stats["sim_rig"]["count_accuracy"], stats["real"]["count_accuracy"]
+    return None if sim is None or real is None else 100.0 * (sim - real)
+
+
+def goals(overall: dict, networks: list[str]) -> dict:
+    """Issue 28's goals on this set: the combined answer's, and each network's alone."""
+    c = overall[COMBINED]
+    real, sim = c["real"], c["sim_rig"]
+    angle = real["joint_angle_error_deg"]
+    out = {
+        "combined_real_count_at_least_0.95": real["count_accuracy"] is not None and real["count_accuracy"] >= 0.95,
+        "combined_real_within_3_points_of_sim_rig": (g := _gap(c)) is not None and g <= 3.0,
+        "combined_wrong_at_most_2_percent": real["objects"] > 0 and real["wrong"] <= 0.02 * real["objects"],
+        "combined_real_E_L_at_most_1.5x_sim_rig": bool(sim["E_L"])
+        and real["E_L"] is not None
+        and real["E_L"] <= 1.5 * sim["E_L"],
+        "combined_joint_angle_error_at_most_5_deg": angle is not None and angle <= 5.0,
+    }
+    for name in networks:
+        s = overall[name]
+        acc = s["real"]["count_accuracy"]
+        out[f"{name}_real_count_at_least_0.90"] = acc is not None and acc >= 0.90
+        out[f"{name}_real_within_5_points_of_sim_rig"] = (g := _gap(s)) is not None and g <= 5.0
+    return out
+
+
+def bench_table(results: list[dict], networks: list[str]) -> dict:
+    """Overall and per-n figures of per-object results (`sim2real.run_object`), rows
+    combined, measurement and each network of `networks`; and issue 28's goals."""
+    rows = [COMBINED, MEASUREMENT, *networks]
+    per_n = {}
+    for n in sorted({r["truth"]["n_links"] for r in results}):
+        mine = [r for r in results if r["truth"]["n_links"] == n]
+        per_n[str(n)] = {"objects": len(mine), "answers": _stats(mine, rows)}
+    overall = _stats(results, rows)
+    return {
+        "rows": rows,
+        "sides": list(SIDES),
+        "overall": {"objects": len(results), "answers": overall, **_times(results)},
+        "per_n": per_n,
+        "goals": goals(overall, networks),
+        "notes": {
+            "sim_rig": "the twin in the training rig (its joints move: no joint-angle truth)",
+            "sim_cameras": "the nominal twin along the capture's own camera path: same renderer, frames and "
+            "resolution, no noise, no clutter, no effect but the hand's path",
+            "real": "the capture with every effect asked for, imported as a real one; predict reads it alone",
+            "combined": "predict's answer (the default model, the network overruled by the measurement)",
+            "measurement": "predict --answer measurement",
+            "networks": "predict --answer network with each model; 'refused' where it cannot read the capture",
+            "wrong / none": "a wrong count and no answer (n_links null) are counted apart; both are not right",
+            "E_L": "end to end, 7 slots, paper units squared; no answer counts as all-zero lengths",
+            "joint_angle_error_deg": "over objects counted right; up to one global sign (a planar chain's mirror)",
+        },
+    }
+
+
+def _f(x, fmt: str) -> str:
+    return "-" if x is None else format(x, fmt)
+
+
+def _figures(s: dict) -> list[str]:
+    """Cells of one side: count acc. (right/scored), wrong, none, E_L, angle error."""
+    if not s["objects"]:
+        return ["refused" if s["refused"] else "-", "-", "-", "-", "-"]
+    acc = f"{_f(s['count_accuracy'], '.3f')}"
+    if s["refused"]:
+        acc += f" ({s['refused']} refused)"
+    return [acc, str(s["wrong"]), str(s["none"]), _f(s["E_L"], ".4f"), _f(s["joint_angle_error_deg"], ".2f")]
+
+
+def _table_lines(stats: dict, rows: list[str], first: str, first_values: list[str]) -> list[str]:
+    cols = ["count acc.", "wrong", "none", "E_L", "angle err. (deg)"]
+    head = f"| {first} | answer | " + " | ".join(f"{c} {SIDE_TITLES[s]}" for s in SIDES for c in cols) + " |"
+    lines = [head, "|" + "---|" * (2 + len(cols) * len(SIDES))]
+    for value, st in zip(first_values, stats):
+        for row in rows:
+            cells = [cell for side in SIDES for cell in _figures(st[row][side])]
+            lines.append(f"| {value} | {row} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def bench_markdown(table: dict) -> str:
+    """The overall table (rows: answers; columns: sides), the goals, per n, and per object."""
+    rows, overall = table["rows"], table["overall"]
+    lines = _table_lines([overall["answers"]], rows, "objects", [str(overall["objects"])])
+    wall = overall["predict_combined_real_s"]
+    lines += [
+        "",
+        f"predict (combined, real) took {_f(wall['mean'], '.1f')} s a capture on average, {_f(wall['max'], '.1f')} s "
+        "at most. Wrong: a count that is not the true one; none: no answer. Joint angles over objects counted "
+        "right, up to one global sign; the rig's joints move, so it has none.",
+        "",
+        "| goal (issue 28) | met |",
+        "|---|---|",
+        *[f"| {k} | {'yes' if v else 'NO'} |" for k, v in table["goals"].items()],
+        "",
+        "Per n:",
+        "",
+    ]
+    per_n = table["per_n"]
+    lines += _table_lines([s["answers"] for s in per_n.values()], rows, "n", list(per_n))
+    lines += ["", *object_lines(table)]
+    return "\n".join(lines) + "\n"
+
+
+def _n(a: dict) -> str:
+    if a.get("refused"):
+        return "refused"
+    return "none" if a["n_links"] is None else str(a["n_links"])
+
+
+def object_lines(table: dict) -> list[str]:
+    """One line per object: its capture settings and each answer's count, sim rig / cameras / real."""
+    rows = table["rows"]
+    head = "| object | n | renderer | sensor | frames | arc (deg) | clutter | poses | "
+    head += " | ".join(f"{r} (rig / cams / real)" for r in rows) + " | combined real: reason |"
+    lines = [head, "|" + "---|" * (9 + len(rows))]
+    for o in table.get("objects", []):
+        c = o["settings"]
+        cells = [" / ".join(_n(o["sides"][s]["answers"][r]) for s in SIDES) for r in rows]
+        reason = o["sides"]["real"]["answers"][COMBINED].get("reason") or ""
+        lines.append(
+            f"| {c['name']} | {c['n_links']} | {c['renderer']} | {c['noise']} {c['resolution']} | {c['frames']} "
+            f"| {c['sweep_deg']:g} | {c['clutter']} | {'hidden' if c['hide_poses'] else 'tracked'} | "
+            + " | ".join(cells)
+            + f" | {reason} |"
+        )
+    return lines
+
+
+def write_png(table: dict, path: str | Path) -> Path:
+    """Count accuracy of every answer kind (groups) on each side (bars: sim rig, sim cameras, real)."""
+    import cv2
+
+    rows = table["rows"]
+    width, height = max(520, 140 * len(rows) + 120), 340
+    img = np.full((height, width, 3), 255, np.uint8)
+    colours = {"sim_rig": (200, 120, 40), "sim_cameras": (90, 180, 90), "real": (40, 120, 230)}  # BGR
+    x0, y0, h = 60, 40, 220
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    cv2.putText(img, "count accuracy", (x0, y0 - 14), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.rectangle(img, (x0, y0), (width - 20, y0 + h), (0, 0, 0), 1)
+    slot = (width - 20 - x0) / len(rows)
+    for i, row in enumerate(rows):
+        for j, side in enumerate(SIDES):
+            v = table["overall"]["answers"][row][side]["count_accuracy"]
+            bx = int(x0 + i * slot + slot * (0.12 + 0.26 * j))
+            by = int(y0 + h - h * (0.0 if v is None or math.isnan(v) else min(v, 1.0)))
+            cv2.rectangle(img, (bx, by), (bx + int(slot * 0.24), y0 + h), colours[side], -1)
+        label = row if len(row) <= 18 else row[:17] + "."
+        cv2.putText(img, label, (int(x0 + i * slot + 4), y0 + h + 18), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    for j, side in enumerate(SIDES):
+        cv2.rectangle(img, (x0 + j * 170, height - 24), (x0 + 14 + j * 170, height - 12), colours[side], -1)
+        cv2.putText(img, SIDE_TITLES[side], (x0 + 20 + j * 170, height - 13), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    path = Path(path)
+    write_bytes_atomic(path, encode_png(img))
+    return path
