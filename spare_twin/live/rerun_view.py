@@ -30,6 +30,9 @@ from spare_twin.output import RRD, writing
 
 #: Fused points shown at most (a random, seeded thinning beyond).
 MAX_POINTS = 150_000
+#: The fused points are logged again after this many placed frames (and at every update): each
+#: logging sends them all, so logging them every frame made a 10 s stream's .rrd 120 MB.
+POINTS_EVERY = 10
 #: A twin built from the estimate is built again when the count changes or a length moves this much (pu).
 REBUILD_PU = 0.03
 #: Colours of a twin built from the estimate, base first (it has no colours of its own).
@@ -67,6 +70,7 @@ class LiveView:
         self.stream, self._ctx = stream, ctx
         self._points: list[np.ndarray] = []
         self._n_points = 0
+        self._since_logged = 0
         self._twins: list[tuple[UrdfTwin, tuple | None]] = []
         self._workdir = tempfile.TemporaryDirectory(prefix="spare-twin-live-")
         self.object = load_object(object_dir) if object_dir is not None else None
@@ -115,8 +119,6 @@ class LiveView:
         self._add_points(fr, T)
 
     def _add_points(self, fr, T) -> None:
-        import rerun as rr
-
         step = 4  # every 4th pixel each way: plenty to see the object grow
         d = fr.depth_u16[::step, ::step].astype(np.float32) * np.float32(fr.depth_scale)
         v, u = np.nonzero((d > 0) & (d < 1.5))
@@ -131,8 +133,18 @@ class LiveView:
             allp = np.concatenate(self._points)
             keep = np.random.default_rng(len(allp)).permutation(len(allp))[: MAX_POINTS // 2]
             self._points, self._n_points = [allp[np.sort(keep)]], MAX_POINTS // 2
-        allp = np.concatenate(self._points)
-        self.stream.log("world/points", rr.Points3D(allp[:, :3], colors=allp[:, 3:].astype(np.uint8), radii=0.0008))
+        self._since_logged += 1
+        if self._since_logged >= POINTS_EVERY:
+            self._log_points()
+
+    def _log_points(self) -> None:
+        import rerun as rr
+
+        if self._points:
+            allp = np.concatenate(self._points)
+            colors = allp[:, 3:].astype(np.uint8)
+            self.stream.log("world/points", rr.Points3D(allp[:, :3], colors=colors, radii=0.0008))
+        self._since_logged = 0
 
     def show_update(self, u, tracker) -> None:
         """An update: the chain, the time series, the answer in words and the posed twin."""
@@ -140,6 +152,7 @@ class LiveView:
 
         p = u.prediction
         self._at(u.t_s)
+        self._log_points()
         words = "\n".join(["final: predict on the recording" if u.final else f"update at {u.t_s:.1f} s",
                            *p.in_words()])  # fmt: skip
         if u.enough:
