@@ -216,10 +216,11 @@ def test_bad_options_are_one_line(sweep, tmp_path, capsys):
         (["--speed", "-1"], ("--speed",)),
         (["--stable-s", "0"], ("--stable-s",)),
         (["--views", "1"], ("--views",)),
+        (["--rrd", str(tmp_path / "v.rrd"), "--object", str(tmp_path / "no_object")], ("no_object",)),
     ):
         code, _, err = run_cli([*base, *extra], capsys)
         _one_line_error(code, err, *words)
-    assert not (tmp_path / "r").exists()
+    assert not (tmp_path / "r").exists() and not (tmp_path / "v.rrd").exists()
 
 
 def test_an_output_that_is_not_a_live_recording_is_refused(sweep, tmp_path, capsys):
