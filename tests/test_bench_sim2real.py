@@ -19,6 +19,7 @@ from conftest import run_cli
 from spare_twin.bench import capture, sim2real
 from spare_twin.bench.scoring import answer_stats, bench_table, score_prediction
 from spare_twin.bench.settings import BenchConfig, capture_settings
+from spare_twin.compare import answers as compare_answers
 from spare_twin.errors import SpareTwinError
 from spare_twin.sim.effects import EFFECTS
 
@@ -274,7 +275,7 @@ def test_second_run_reuses_every_object(tiny_bench, capsys, monkeypatch):
     def refuse(*a, **k):
         raise AssertionError("a finished object was drawn or predicted again")
 
-    monkeypatch.setattr(sim2real, "predict_recording", refuse)
+    monkeypatch.setattr(compare_answers, "predict_recording", refuse)
     monkeypatch.setattr(capture, "render_recording", refuse)
     code, stdout, err = run_cli(["bench", "sim2real", "--out", str(out), *TINY], capsys)
     assert code == 0, err
@@ -302,7 +303,7 @@ def test_changed_predict_key_predicts_again_on_the_kept_captures(tiny_bench, cap
     def refuse(*a, **k):
         raise AssertionError("a kept capture was drawn again")
 
-    monkeypatch.setattr(sim2real, "predict_recording", fake_predict)
+    monkeypatch.setattr(compare_answers, "predict_recording", fake_predict)
     monkeypatch.setattr(capture, "render_recording", refuse)
     code, _, err = run_cli(["bench", "sim2real", "--out", str(out), *TINY], capsys)
     assert code == 0, err
@@ -310,3 +311,64 @@ def test_changed_predict_key_predicts_again_on_the_kept_captures(tiny_bench, cap
     again = json.loads((out / "sim2real.json").read_text())["objects"]
     assert _without_times(again[:1]) == _without_times(table["objects"][:1])  # kept as it was
     assert again[1]["sides"]["real"]["answers"]["measurement"]["n_links"] == 1  # predicted again
+
+
+def test_compare_batch_reports_each_answer_alone(tmp_path, monkeypatch):
+    """`compare --batch`: per pair, the combined answer and its estimates from compare's own predictions,
+    each other network alone on both sides; the rows in the table (JSON and Markdown), wrong apart from
+    none, a network that refuses a recording recorded as refused."""
+    from spare_twin.compare import batch
+
+    truth = {"n_links": 2, "link_lengths_pu": [1.5, 0.5, 0.4], "joint_angles_rad": [0.3, -0.2]}
+    one = {"n_links": 1, "link_lengths_pu": [1.5, 0.9], "joint_angles_rad": [0.3]}
+
+    def side(answer, network, measurement):
+        return {**answer, "source": "measurement", "network": network, "measurement": measurement}
+
+    class FakeComparison:
+        def __init__(self, sim_dir):
+            self.sim_dir = sim_dir
+
+        def to_json(self):
+            sim = side(TRUTH, one, TRUTH)
+            real = side({**NONE, "source": None}, WRONG, None)
+            errors = {s: {"count_correct": s == "sim", "E_L": 0.0} for s in ("sim", "real", "real_twin_aligned")}
+            return {
+                "truth": truth,
+                "sim": sim,
+                "real": real,
+                "real_twin_aligned": real,
+                "errors": {**errors, "joint_angles_deg": None, "real_joint_angles_deg": None},
+                "sim_recording": str(self.sim_dir),
+                "model": "m",
+                "settings": batch.CompareConfig().settings(),
+            }
+
+    def fake_compare(object_dir, real_dir, model=None, sim_dir=None, force=False):
+        return FakeComparison(sim_dir)
+
+    def fake_predict(rec, model, progress=False, answer="combined"):
+        raise SpareTwinError("the temporal model reads 100 consecutive frames of one camera")
+
+    for name in ("a", "b"):
+        for sub in ("object", "real", "sim_twin"):
+            (tmp_path / "pairs" / name / sub).mkdir(parents=True)
+    monkeypatch.setattr(batch, "compare", fake_compare)
+    monkeypatch.setattr(compare_answers, "predict_recording", fake_predict)
+    table, files = batch.compare_batch(
+        tmp_path / "pairs", tmp_path / "t", progress=False, models=["profile-multitask", "grey-tmp-multitask"]
+    )
+    a = table["answers"]
+    assert a["rows"] == ["combined", "measurement", "profile-multitask", "grey-tmp-multitask"]
+    assert a["sides"] == ["sim", "real"] and list(a["per_n"]) == ["2"]
+    real, sim = {r: a["overall"][r]["real"] for r in a["rows"]}, {r: a["overall"][r]["sim"] for r in a["rows"]}
+    assert (real["combined"]["none"], real["combined"]["wrong"], real["combined"]["count_accuracy"]) == (2, 0, 0.0)
+    assert real["measurement"]["none"] == 2  # the measurement gave nothing
+    assert (real["profile-multitask"]["wrong"], real["profile-multitask"]["none"]) == (2, 0)  # the network's own
+    assert sim["combined"]["count_accuracy"] == 1.0 and sim["profile-multitask"]["wrong"] == 2
+    assert real["grey-tmp-multitask"] == {**real["grey-tmp-multitask"], "refused": 2, "objects": 0}
+    stored = json.loads((tmp_path / "pairs" / "a" / "compare.json").read_text())["answers"]
+    assert "100 consecutive frames" in stored["sides"]["real"]["answers"]["grey-tmp-multitask"]["refused"]
+    md = (tmp_path / "t" / "sim2real.md").read_text()
+    assert "Each answer alone" in md and "| 2 | grey-tmp-multitask | refused |" in md
+    assert "| count acc. sim, real cameras |" in md and "| 2 | measurement |" in md

@@ -1,5 +1,5 @@
-"""Scoring the sim-to-real bench: one answer against the truth (`score_prediction`), and the table of
-every answer kind (combined, the measurement, each network alone) on every side (sim rig, sim through
+"""Scoring the sim-to-real bench: one answer against the truth (`compare.answers.score_prediction`),
+and the table of every answer kind (combined, the measurement, each network alone) on every side (sim rig, sim through
 the capture's cameras, real), overall and per n (`bench_table`), as Markdown and a plot.
 
 Wrong answers (a count that is not the true one) are counted apart from no answers (`n_links: null`);
@@ -15,87 +15,27 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.bench.capture import SIDE_TITLES, SIDES
-from spare_twin.config import LABEL_SLOTS
+from spare_twin.compare.answers import (
+    COMBINED,
+    MEASUREMENT,
+    answer_stats,
+    mean_of,
+    rows_markdown,
+    rows_table,
+    score_prediction,
+)
 from spare_twin.io import encode_png, write_bytes_atomic
-from spare_twin.nets.metrics import length_errors
 
-#: The answer kinds before the networks: `predict`'s combined answer and the measurement alone.
-COMBINED, MEASUREMENT = "combined", "measurement"
-
-
-def _wrap_rad(a: np.ndarray) -> np.ndarray:
-    return (a + np.pi) % (2 * np.pi) - np.pi
-
-
-def _slots(lengths) -> np.ndarray:
-    v = np.zeros(LABEL_SLOTS)
-    if lengths is not None:
-        lengths = np.asarray(lengths, dtype=np.float64)[:LABEL_SLOTS]
-        v[: len(lengths)] = lengths
-    return v
-
-
-def score_prediction(truth: dict, pred: dict) -> dict:
-    """One answer against the truth; both dicts with `n_links` (None: no answer), `link_lengths_pu`
-    (n + 1 paper-unit lengths, base first) and `joint_angles_rad` (n, or None).
-
-    - `count_correct`: the count is the true one; `answered`: a count was given (no answer is not right,
-      and not a wrong count either: the table counts the two apart);
-    - `E_L`: end to end over the paper's 7 slots (docs/design.md): the truth zero past the true count,
-      the prediction zero past the predicted one (no answer: all zero), sum of squared differences;
-    - `joint_angle_error_deg`: only when the count is right and both angles are known: mean absolute
-      difference (wrapped to +-180 deg) over the joints. A planar chain seen from the other side is its
-      own mirror image with every angle negated, so the angles are known up to one global sign: the
-      better sign is taken (`joint_angle_sign`)."""
-    true_n, pred_n = int(truth["n_links"]), pred.get("n_links")
-    err = length_errors(
-        _slots(truth["link_lengths_pu"])[None],
-        _slots(pred.get("link_lengths_pu") if pred_n else None)[None],
-        np.array([true_n]),
-        np.array([pred_n or 0]),
-    )
-    out = {"count_correct": pred_n == true_n, "answered": pred_n is not None, "E_L": float(err[0])}
-    out.update(joint_angle_error_deg=None, joint_angle_sign=None)
-    angles, true_angles = pred.get("joint_angles_rad"), truth.get("joint_angles_rad")
-    if out["count_correct"] and angles is not None and true_angles is not None and len(angles) == true_n:
-        a, t = np.asarray(angles, dtype=np.float64), np.asarray(true_angles, dtype=np.float64)
-        errors = {sign: float(np.degrees(np.abs(_wrap_rad(t - sign * a))).mean()) for sign in (1, -1)}
-        sign = min(errors, key=lambda s: (errors[s], -s))
-        out["joint_angle_error_deg"], out["joint_angle_sign"] = errors[sign], sign
-    return out
-
-
-def _mean(values: list) -> float | None:
-    values = [v for v in values if v is not None]
-    return float(np.mean(values)) if values else None
-
-
-def answer_stats(answers: list[dict]) -> dict:
-    """Figures of one answer kind on one side over `answers` (each with `score`, or `refused`):
-    count accuracy, wrong and no answers (counts), E_L and the joint-angle error over the scored ones."""
-    scored = [a["score"] for a in answers if not a.get("refused")]
-    angles = [s["joint_angle_error_deg"] for s in scored if s["joint_angle_error_deg"] is not None]
-    return {
-        "objects": len(scored),
-        "refused": len(answers) - len(scored),
-        "count_accuracy": float(np.mean([s["count_correct"] for s in scored])) if scored else None,
-        "wrong": sum(s["answered"] and not s["count_correct"] for s in scored),
-        "none": sum(not s["answered"] for s in scored),
-        "E_L": _mean([s["E_L"] for s in scored]),
-        "joint_angle_error_deg": _mean(angles),
-        "joint_angle_objects": len(angles),
-    }
+__all__ = ["COMBINED", "MEASUREMENT", "answer_stats", "bench_markdown", "bench_table", "score_prediction", "write_png"]
 
 
 def _stats(results: list[dict], rows: list[str]) -> dict:
-    return {
-        row: {side: answer_stats([r["sides"][side]["answers"][row] for r in results]) for side in SIDES} for row in rows
-    }
+    return rows_table(results, rows, SIDES)
 
 
 def _times(results: list[dict]) -> dict:
     wall = [r["times_s"]["predict"]["real"][COMBINED] for r in results]
-    return {"predict_combined_real_s": {"mean": _mean(wall), "max": float(max(wall)) if wall else None}}
+    return {"predict_combined_real_s": {"mean": mean_of(wall), "max": float(max(wall)) if wall else None}}
 
 
 def _gap(stats: dict) -> float | None:
@@ -159,25 +99,8 @@ def _f(x, fmt: str) -> str:
     return "-" if x is None else format(x, fmt)
 
 
-def _figures(s: dict) -> list[str]:
-    """Cells of one side: count acc. (right/scored), wrong, none, E_L, angle error."""
-    if not s["objects"]:
-        return ["refused" if s["refused"] else "-", "-", "-", "-", "-"]
-    acc = f"{_f(s['count_accuracy'], '.3f')}"
-    if s["refused"]:
-        acc += f" ({s['refused']} refused)"
-    return [acc, str(s["wrong"]), str(s["none"]), _f(s["E_L"], ".4f"), _f(s["joint_angle_error_deg"], ".2f")]
-
-
-def _table_lines(stats: dict, rows: list[str], first: str, first_values: list[str]) -> list[str]:
-    cols = ["count acc.", "wrong", "none", "E_L", "angle err. (deg)"]
-    head = f"| {first} | answer | " + " | ".join(f"{c} {SIDE_TITLES[s]}" for s in SIDES for c in cols) + " |"
-    lines = [head, "|" + "---|" * (2 + len(cols) * len(SIDES))]
-    for value, st in zip(first_values, stats):
-        for row in rows:
-            cells = [cell for side in SIDES for cell in _figures(st[row][side])]
-            lines.append(f"| {value} | {row} | " + " | ".join(cells) + " |")
-    return lines
+def _table_lines(stats: list[dict], rows: list[str], first: str, first_values: list[str]) -> list[str]:
+    return rows_markdown(stats, rows, {s: SIDE_TITLES[s] for s in SIDES}, first, first_values)
 
 
 def bench_markdown(table: dict) -> str:

@@ -23,12 +23,10 @@ models changed). Objects run in `workers` processes; the results do not depend o
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 
 from tqdm import tqdm
@@ -36,126 +34,19 @@ from tqdm import tqdm
 from spare_twin import __version__
 from spare_twin.bench import capture
 from spare_twin.bench.capture import SIDES
-from spare_twin.bench.scoring import COMBINED, MEASUREMENT, bench_markdown, bench_table, score_prediction, write_png
+from spare_twin.bench.scoring import COMBINED, bench_markdown, bench_table, write_png
 from spare_twin.bench.settings import BenchConfig, CaptureSettings, capture_settings
+from spare_twin.compare.answers import Model, answers_of, model_of, resolve_models, score_answers
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.output import writing
-from spare_twin.predict.run import predict_recording
 
 #: Output kind (`spare_twin.output`) of a whole bench folder.
 BENCH = "bench sim2real"
 #: What a per-object result means; a result of another format is recomputed.
 BENCH_FORMAT = 2
 TABLE_FILES = ("json", "md", "png")
-#: Shipped models that read posed views or a sweep's frames (the profile network, the multi-view
-#: depth and grey networks); a temporal one reads its trained number of consecutive frames.
-_READS_A_SWEEP = ("profile", "mv")
-
-
-@dataclass(frozen=True)
-class Model:
-    """A network the bench scores alone: its row name, checkpoint and content hash."""
-
-    name: str
-    path: str
-    sha256: str
-
-
-def _file_sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
-def _model(name: str, path: Path) -> Model:
-    ckpt.load_model(path)  # a bad checkpoint is refused before any capture is drawn
-    return Model(name, str(path), _file_sha256(path))
-
-
-def resolve_models(names: Sequence[str] | None, frames_lo: int, models_dir: Path = ckpt.MODELS_DIR) -> list[Model]:
-    """The networks to score alone: `names` (shipped names in models/index.json, or checkpoint files),
-    or by default every shipped model that can read the captures (those reading posed views or a
-    sweep, and temporal ones whose trained frame count the shortest capture has)."""
-    shipped = ckpt.read_index(models_dir).get("models", {})
-    if names is None:
-        chosen = []
-        for name, entry in sorted(shipped.items()):
-            path = Path(models_dir) / entry.get("file", f"{name}.pt")
-            if entry.get("mode") in _READS_A_SWEEP or ckpt.load_model(path)[1].frames <= frames_lo:
-                chosen.append(_model(name, path))
-        return chosen
-    out, seen = [], set()
-    for name in names:
-        if name in shipped:
-            path = Path(models_dir) / shipped[name].get("file", f"{name}.pt")
-        elif Path(name).is_file():
-            path, name = Path(name), Path(name).stem
-        else:
-            raise SpareTwinError(f"models {name!r}: no shipped model of that name (models/index.json) and no such file")
-        if name in seen or name in (COMBINED, MEASUREMENT):
-            raise SpareTwinError(f"models {name!r}: named twice, or the name of another row")
-        seen.add(name)
-        out.append(_model(name, path))
-    return out
-
-
-def _answer(pred, kind: str) -> dict:
-    """`predict --json`'s keys of the answer (`kind` combined) or of one estimate alone."""
-    if kind == COMBINED:
-        j = pred.to_json()
-        keep = ("n_links", "link_lengths_pu", "joint_angles_rad", "source", "reason", "input")
-        return {k: j[k] for k in keep if k in j}
-    est = pred.measurement if kind == MEASUREMENT else pred.network
-    if est is None:  # nothing in view: the estimator had nothing to read
-        return _no_answer(pred.reason)
-    source = MEASUREMENT if kind == MEASUREMENT else "network"
-    return {**est.to_json(), "source": None if est.n_links is None else source}
-
-
-def _no_answer(reason: str) -> dict:
-    return {"n_links": None, "link_lengths_pu": None, "joint_angles_rad": None, "source": None, "reason": reason}
-
-
-def _refused(reason: str) -> dict:
-    return {"n_links": None, "link_lengths_pu": None, "joint_angles_rad": None, "refused": reason}
-
-
-def _predict(rec: Path, model: str | None, answer: str):
-    """`predict_recording` and its wall time; (None, error) where it refuses the recording."""
-    t0 = time.perf_counter()
-    try:
-        pred = predict_recording(rec, model, progress=False, answer=answer)
-    except SpareTwinError as exc:  # the recording named by its side: the bench's folder differs per run
-        return None, str(exc).replace(str(rec), rec.name), time.perf_counter() - t0
-    return pred, None, time.perf_counter() - t0
-
-
-def predict_side(rec: Path, combined_model: Model, models: list[Model]) -> tuple[dict, dict]:
-    """Every answer on one recording (see the module doc), and the seconds each took."""
-    answers, times = {}, {}
-    pred, error, times[COMBINED] = _predict(rec, combined_model.path, COMBINED)
-    if pred is None:  # predict's own answer: a refusal is no answer
-        answers[COMBINED], answers[MEASUREMENT] = _no_answer(f"error: {error}"), _no_answer(f"error: {error}")
-    else:
-        answers[COMBINED], answers[MEASUREMENT] = _answer(pred, COMBINED), _answer(pred, MEASUREMENT)
-    for m in models:
-        if m.sha256 == combined_model.sha256 and pred is not None:
-            answers[m.name] = _answer(pred, "network")  # the same network estimate as --answer network
-            continue
-        net, error, times[m.name] = _predict(rec, m.path, "network")
-        if net is None and error.startswith((f"{rec.name}:", f"{rec.name}/")):  # about its content: no answer
-            answers[m.name] = _no_answer(f"error: {error}")
-        elif net is None:  # about the model and the kind of recording it reads
-            answers[m.name] = _refused(error)
-        elif net.n_links is None and net.input == "none":  # it read nothing: the capture is not its kind
-            answers[m.name] = _refused(net.reason)
-        else:
-            answers[m.name] = _answer(net, "network")
-    return answers, times
 
 
 def _key(c: CaptureSettings, cfg: BenchConfig, combined_model: Model, models: list[Model]) -> dict:
@@ -211,13 +102,10 @@ def run_object(d: Path, c: CaptureSettings, cfg: BenchConfig, combined_model: Mo
         truth, draw_s = _draw(d, c, cfg)
     sides, predict_s = {}, {}
     for side in SIDES:
-        answers, predict_s[side] = predict_side(d / side, combined_model, models)
+        answers, predict_s[side] = answers_of(d / side, combined_model, models)
         # the rig's joints move (no one held pose to score); both hand-held paths see the held pose
         t = {**truth, "joint_angles_rad": None} if side == "sim_rig" else truth
-        for a in answers.values():
-            if not a.get("refused"):
-                a["score"] = score_prediction(t, a)
-        sides[side] = {"answers": answers}
+        sides[side] = {"answers": score_answers(answers, t)}
     result = {
         "key": key,
         "name": c.name,
@@ -289,7 +177,7 @@ def bench_sim2real(
     settings = capture_settings(cfg)  # validates cfg before anything is loaded or written
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise SpareTwinError(f"workers {workers!r}: must be a whole number, at least 1")
-    combined_model = _model(COMBINED, ckpt.default_model("predict"))
+    combined_model = model_of(COMBINED, ckpt.default_model("predict"))
     nets = resolve_models(models, cfg.frames[0])
     with writing(out, BENCH, (), force, resumable=True) as tmp:
         jobs = [(tmp / c.name, c, cfg, combined_model, nets) for c in settings]

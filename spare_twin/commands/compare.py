@@ -76,10 +76,10 @@ def run_batch(args: argparse.Namespace) -> int:
 def print_table(table: dict, files: dict[str, str], as_json: bool) -> None:
     import json
 
-    from spare_twin.compare.table import table_markdown
+    from spare_twin.compare.batch import batch_markdown
 
     if as_json:
         print(json.dumps(table))
     else:
-        print(table_markdown(table), end="")
+        print(batch_markdown(table), end="")
         print(f"wrote {', '.join(files.values())}")
