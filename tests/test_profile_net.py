@@ -4,14 +4,17 @@ samples are made the way `predict` makes its input (spare_twin.nets.profile_samp
 from __future__ import annotations
 
 import json
+import shutil
 
 import numpy as np
 import pytest
 import torch
+from conftest import run_cli
 
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.models import decode
 from spare_twin.nets.profile_train import observe_split
+from spare_twin.predict.combine import overrule
 
 
 @pytest.fixture(scope="module")
@@ -44,21 +47,102 @@ def test_samples_are_deterministic_and_labelled(small_data):
 
 
 def test_a_short_training_run_learns(run, small_data):
-    history = json.loads((run / "history.json").read_text())["history"]
-    assert history[-1]["loss"] < 0.5 * history[0]["loss"]
+    """The profile network trains through the one training loop (nets.train) like every network."""
+    history = json.loads((run / "history.json").read_text())
+    assert len(history) == 25
+    assert history[-1]["train_loss"] < 0.5 * history[0]["train_loss"]
+    for name in ("last.pt", "best.pt", "model.pt", "learning_curve.png", "MODEL_CARD.md", "samples-val.npz"):
+        assert (run / name).is_file(), name
+    assert "scheduler" in ckpt.load(run / "last.pt")  # its one-cycle rate goes on where a resumed run left it
     # it fits what it was shown: the training samples' counts and lengths
-    model, net, _ = ckpt.load_model(run / "model.pt")
+    model, net, ck = ckpt.load_model(run / "model.pt")
     with np.load(run / "samples-train.npz") as z:  # the observed training samples, as cached by the run
         train = {k: z[k] for k in z.files}
+    assert ck["meta"]["training_samples"] == len(train["n"])
     res = decode(model, net, {"x": torch.from_numpy(train["x"].astype(np.float32))})
     acc = float((res["pred_n"].numpy() == train["n"]).mean())
     assert acc >= 0.9, acc
 
 
-def test_evaluate_reads_the_profile_network(run, small_data, capsys):
-    from spare_twin.cli import main
+#: A profile network small enough to train for a few epochs in a second.
+TINY_PROFILE = {
+    "net": {"channels": [8, 8, 8, 8, 8], "fc_hidden": 16},
+    "train": {"epochs": 3, "batch_size": 16, "workers": 1, "threads": 1},
+}
 
-    assert main(["evaluate", "--model", str(run / "model.pt"), "--data", str(small_data), "--json"]) == 0
-    res = json.loads(capsys.readouterr().out)
-    assert res["split"] == "test" and res["instances"] > 0
-    assert 0.0 <= res["count_accuracy"] <= 1.0 and res["E_L"] >= 0.0
+
+def _with_samples_of(run, folder):
+    """A run folder that starts from `run`'s observed samples (observing them again costs most of a run)."""
+    folder.mkdir()
+    for f in run.glob("samples-*.npz"):
+        shutil.copyfile(f, folder / f.name)
+    return folder
+
+
+def test_profile_training_resumes_exactly(run, small_data, tmp_path, monkeypatch):
+    from spare_twin.nets import train as trainer
+    from spare_twin.nets.presets import resolve
+
+    preset = resolve("profile-depth-multitask", TINY_PROFILE)
+    trainer.train(preset, [small_data], _with_samples_of(run, tmp_path / "a"), progress=False)
+    end_epoch = trainer._RunWriter.end_epoch
+
+    def interrupted(self, row, *args):  # a kill right after epoch 2's checkpoint
+        best = end_epoch(self, row, *args)
+        if row["epoch"] == 2:
+            raise KeyboardInterrupt
+        return best
+
+    monkeypatch.setattr(trainer._RunWriter, "end_epoch", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        trainer.train(preset, [small_data], _with_samples_of(run, tmp_path / "b"), progress=False)
+    monkeypatch.undo()
+    assert ckpt.load(tmp_path / "b" / "last.pt")["epoch"] == 1
+    trainer.train(preset, [small_data], tmp_path / "b", resume=True, progress=False)
+    a, b = ckpt.load(tmp_path / "a" / "last.pt"), ckpt.load(tmp_path / "b" / "last.pt")
+    assert a["epoch"] == b["epoch"] == 2 and len(b["history"]) == 3
+    for k in a["state_dict"]:
+        assert torch.equal(a["state_dict"][k], b["state_dict"][k]), k
+
+
+def test_profile_training_takes_patience_and_device(run, small_data, tmp_path, capsys):
+    """A rate too small to change anything: validation never improves on epoch 1, so with patience 1
+    the run ends after epoch 2 of 10."""
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(json.dumps({"preset": "profile-depth-multitask", **TINY_PROFILE}))
+    out = _with_samples_of(run, tmp_path / "run")
+    argv = ["train", "--config", str(cfg), "--data", str(small_data), "--out", str(out), "--epochs", "10"]
+    code, stdout, err = run_cli([*argv, "--lr", "1e-12", "--patience", "1", "--device", "cpu", "--json"], capsys)
+    assert code == 0, err
+    assert "stopping early" in err and json.loads(stdout)["best_epoch"] == 1
+    assert len(json.loads((out / "history.json").read_text())) == 2
+    code, stdout, err = run_cli([*argv, "--out", str(tmp_path / "otf"), "--on-the-fly"], capsys)
+    assert code == 1 and "--on-the-fly" in err and not (tmp_path / "otf").exists()
+
+
+def test_evaluate_gives_the_network_alone_and_combined(run, small_data, tmp_path, monkeypatch, capsys):
+    """The network's own figures lead; the combined answer (overruled by the layer measurement, as
+    predict answers) stands beside them; the observed split is cached, so a second evaluation reads it."""
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    argv = ["evaluate", "--model", str(run / "model.pt"), "--data", str(small_data), "--json"]
+    code, out, err = run_cli(argv, capsys)
+    assert code == 0, err
+    res = json.loads(out)
+    network, combined = res["network"], res["combined"]
+    assert res["split"] == "test" and res["instances"] > 0 and res["headline"] == "network"
+    assert res["count_accuracy"] == network["count_accuracy"] and res["E_L"] == network["E_L"]
+    # the network's figure is the network's: its own argmax on the observed test profiles
+    (cache,) = (tmp_path / "cache" / "spare-twin" / "observed").glob("test-*.npz")
+    with np.load(cache) as z:
+        test = {k: z[k] for k in z.files}
+    model, net, _ = ckpt.load_model(run / "model.pt")
+    own = decode(model, net, {"x": torch.from_numpy(test["x"].astype(np.float32))})
+    assert len(test["n"]) == res["instances"]
+    assert network["count_accuracy"] == pytest.approx(float((own["pred_n"].numpy() == test["n"]).mean()))
+    # the combined figure is predict's rule applied to the same instances, with the measurement each carries
+    answer = overrule(own, {k: torch.as_tensor(v) for k, v in test.items() if k.startswith("measured_")})
+    assert combined["count_accuracy"] == pytest.approx(float((answer["pred_n"].numpy() == test["n"]).mean()))
+    # on the rig's views as they are the layers find nearly every chain, and count it right
+    assert (test["measured_n"] > 0).mean() >= 0.9 and combined["count_accuracy"] >= 0.9
+    code, again, err = run_cli(argv, capsys)
+    assert code == 0 and json.loads(again) == res and "observe test" not in err

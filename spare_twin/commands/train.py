@@ -112,30 +112,18 @@ def run(args) -> int:
     given = {f"train.{k}": OVERRIDE_FLAGS[k] for k in overrides}
     with flags(**given):
         preset = resolve(args.preset, config, args.config or "--preset")
-    if preset.net.arch == "profile":
-        from spare_twin.nets.profile_train import train_profile
-
-        with flags(data_dir="--data", out_dir="--out", **given):
-            summary = train_profile(
-                preset,
-                args.data.split(","),
-                args.out,
-                workers=preset.train.workers or 1,
-                command=_reconstruct(args),
-                force=args.force,
-            )
-        print(json.dumps(summary) if args.json else f"wrote {summary['model']} (best epoch {summary['best_epoch']})")
-        return 0
     from spare_twin.nets.distributed import is_main_process
     from spare_twin.nets.train import train
 
     command = "spare-twin " + " ".join(shlex.quote(a) for a in sys.argv[1:]) if sys.argv and "train" in sys.argv else ""
     if command and int(os.environ.get("WORLD_SIZE", "1")) > 1:
         command = f"torchrun --nproc-per-node {os.environ.get('LOCAL_WORLD_SIZE', '?')} -m spare_twin" + command[10:]
-    with flags(data_dir="--data", out_dir="--out", resume="--resume", device="--device", **given):
+    with flags(
+        data_dir="--data", out_dir="--out", resume="--resume", device="--device", on_the_fly="--on-the-fly", **given
+    ):
         summary = train(
             preset,
-            args.data,
+            args.data.split(","),
             args.out,
             device=args.device,
             on_the_fly=args.on_the_fly,

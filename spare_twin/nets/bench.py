@@ -13,8 +13,9 @@ import torch
 from spare_twin.dataset.synthetic import SyntheticSpec, make_sample
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
-from spare_twin.nets.models import build_model, model_inputs
+from spare_twin.nets.models import model_inputs
 from spare_twin.nets.presets import NetConfig, get_preset
+from spare_twin.nets.registry import architecture, build_model
 
 DEVICES = ("cpu", "cuda")
 
@@ -61,7 +62,7 @@ def bench_inference(
     out = {}
     for bs in batch_sizes:
         inputs = model_inputs(example_batch(net, bs), device)
-        kw = {"n_links": torch.full((bs,), 3, device=device)} if net.arch in ("conv3d_per_n",) else {}
+        kw = {"n_links": torch.full((bs,), 3, device=device)} if architecture(net).needs_count else {}
         times = []
         for i in range(warmup + iters):
             if device != "cpu":

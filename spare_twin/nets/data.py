@@ -1,5 +1,7 @@
-"""Where the networks get their samples: the project's dataset (spare_twin.dataset) or a synthetic
-folder (synthetic.json, see dataset/synthetic.py). Both yield the docs/design.md sample dict.
+"""Where the image and voxel networks get their samples: the project's dataset (spare_twin.dataset)
+or a synthetic folder (synthetic.json, see dataset/synthetic.py). Both yield the docs/design.md
+sample dict. (The profile network's samples are observed: `nets.profile_train`; which network takes
+which is the registry's, `nets.registry`.)
 
 Stored data: ``spare_twin.dataset.torch_data.SpareDataset`` (manifest.json + HDF5 sequences).
 On the fly: ``spare_twin.dataset.torch_data.OnTheFlyDataset`` with the stored dataset's generator
@@ -17,7 +19,6 @@ from spare_twin.dataset.synthetic import RIG_NAME, SyntheticDataset, SyntheticOn
 from spare_twin.dataset.torch_data import OnTheFlyDataset, PoseJitter, SpareDataset
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets.presets import NetConfig, TrainConfig
-from spare_twin.nets.profile_samples import ProfileSplit
 from spare_twin.sim.noise import load_noise
 
 
@@ -54,13 +55,6 @@ def open_split(data_dir, split: str, net: NetConfig, augment: TrainConfig | None
     """The map Dataset of one split ("train", "val", "test") for this network's mode and input, with
     the sim-to-real augmentation of `augment` (a TrainConfig) applied at read time."""
     data_dir = _check_dir(data_dir)
-    if net.mode == "profile":
-        if _is_synthetic(data_dir) or not (data_dir / "manifest.json").is_file():
-            raise SpareTwinError(f"data_dir {data_dir}: the profile network needs a spare-twin dataset (depth views)")
-        ds = ProfileSplit(data_dir, split)
-        if len(ds) == 0:
-            raise SpareTwinError(f"data_dir {data_dir}: the {split} split is empty")
-        return ds
     if _is_synthetic(data_dir):
         spec = read_spec(data_dir)
         if (spec.mode, spec.input) != (net.mode, net.input):
@@ -87,6 +81,17 @@ def open_split(data_dir, split: str, net: NetConfig, augment: TrainConfig | None
     if len(ds) == 0:
         raise SpareTwinError(f"data_dir {data_dir}: the {split} split is empty")
     return ds
+
+
+def stored_samples(
+    data_dirs, split: str, net: NetConfig, train: TrainConfig | None = None, run_dir=None, progress=True
+):
+    """`open_split` of the one dataset folder in `data_dirs`, with `train`'s read-time augmentation on
+    the train split (the registry's sample source of the image and voxel networks; `run_dir` and
+    `progress` are unused: nothing is observed ahead)."""
+    if len(data_dirs) != 1:
+        raise SpareTwinError(f"data_dir {','.join(map(str, data_dirs))}: this network trains on one dataset folder")
+    return open_split(data_dirs[0], split, net, augment=train if split == "train" else None)
 
 
 def open_on_the_fly(

@@ -4,7 +4,8 @@ yaw-free profile network; the grey lifting network lives in grey_lift.py.
 
 Every network takes the docs/design.md sample fields as keyword tensors and returns a dict with any of
 ``count_logits`` (B, 6), ``lengths`` (B, 7, paper units) and ``angles`` (B, 6, rad). `decode` turns
-those into predictions with the paper's rules (see metrics.py).
+those into predictions with the paper's rules (see metrics.py). Which network an architecture name
+builds, and which decoder reads it, is the registry's (`spare_twin.nets.registry`).
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ from spare_twin.nets.blocks import (
     voxel_fc,
 )
 from spare_twin.nets.geometry import voxelize
-from spare_twin.nets.grey_lift import GreyLiftNet
 from spare_twin.nets.presets import NetConfig
 
 #: ProfileNet's convolutions that halve the resolution (64 x 80 -> 8 x 10 with the preset's five).
@@ -243,23 +243,6 @@ class ProfileNet(nn.Module):
         return out
 
 
-def build_model(cfg: NetConfig) -> nn.Module:
-    if cfg.arch == "profile":
-        return ProfileNet(cfg)
-    if cfg.arch == "geo_voxel":
-        return GeoVoxelNet(cfg)
-    if cfg.arch == "grey_lift":
-        return GreyLiftNet(cfg)
-    if cfg.arch == "conv3d_per_n":
-        return PerCountRegressors(cfg)
-    if cfg.arch == "naive":
-        return NaiveCombination(cfg)
-    if cfg.task not in ("count", "e2e"):
-        raise ValueError(f"{cfg.arch} supports tasks count and e2e (got {cfg.task})")
-    out, key = (N_CLASSES, "count_logits") if cfg.task == "count" else (SLOTS, "lengths")
-    return (Conv3DNet if cfg.arch == "conv3d" else CNNLSTMNet)(cfg, out, key)
-
-
 def input_norms(model: nn.Module) -> list[InputNorm]:
     return [m for m in model.modules() if isinstance(m, InputNorm)]
 
@@ -286,19 +269,36 @@ def mask_after(lengths: torch.Tensor, n: torch.Tensor) -> torch.Tensor:
 
 
 @torch.no_grad()
-def decode(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.Tensor | None = None) -> dict:
-    """Predictions for one batch.
+def decode_heads(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.Tensor | None = None) -> dict:
+    """Predictions for one batch of a network with count and / or length heads.
 
-    Returns ``pred_n`` (B,) and ``probabilities`` (B, 6) when the model counts; ``lengths_e2e``
-    (masked by the predicted count) when it is end-to-end capable; ``lengths_known`` (masked by the
-    true count) when lengths exist and `true_n` is given; ``angles`` when predicted.
+    Returns ``pred_n`` (B,) and ``probabilities`` (B, 6) when the model counts (a pure e2e regressor:
+    the count read off its slots); ``lengths_e2e`` (masked by the predicted count) when it regresses
+    lengths; ``lengths_known`` (masked by the true count) when lengths exist and `true_n` is given;
+    ``angles`` when predicted.
     """
-    res: dict = {}
-    if cfg.arch == "conv3d_per_n":
-        if true_n is not None:
-            res["lengths_known"] = mask_after(model(**inputs, n_links=true_n)["lengths"], true_n)
-        return res
     out = model(**inputs)
+    return _decode(cfg, out, true_n, lambda: out["lengths"])
+
+
+@torch.no_grad()
+def decode_routed(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.Tensor | None = None) -> dict:
+    """`decode_heads` of a network whose lengths are routed by a count (the naive combination): its
+    own predicted count end to end, the true count for ``lengths_known``."""
+    out = model(**inputs)  # routed by its own predicted count
+    return _decode(cfg, out, true_n, lambda: model(**inputs, n_links=true_n)["lengths"])
+
+
+@torch.no_grad()
+def decode_known_count(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.Tensor | None = None) -> dict:
+    """The per-count length regressors: ``lengths_known`` for the given count (nothing without one)."""
+    if true_n is None:
+        return {}
+    return {"lengths_known": mask_after(model(**inputs, n_links=true_n)["lengths"], true_n)}
+
+
+def _decode(cfg: NetConfig, out: dict, true_n, known_lengths) -> dict:
+    res: dict = {}
     if "count_logits" in out:
         res["probabilities"] = torch.softmax(out["count_logits"], 1)
         res["pred_n"] = out["count_logits"].argmax(1) + 1
@@ -308,8 +308,18 @@ def decode(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.Tensor 
     if "lengths" in out:
         res["lengths_e2e"] = mask_after(out["lengths"], res["pred_n"])
         if true_n is not None:
-            known = out["lengths"] if cfg.arch != "naive" else model(**inputs, n_links=true_n)["lengths"]
-            res["lengths_known"] = mask_after(known, true_n)
+            res["lengths_known"] = mask_after(known_lengths(), true_n)
     if "angles" in out:
         res["angles"] = out["angles"]
     return res
+
+
+def __getattr__(name: str):
+    """`build_model` and `decode` are the registry's (`spare_twin.nets.registry`), importable from
+    here too (the checkpoint loader and predict do). Looked up on first use: the registry imports
+    this module's networks, so this module cannot import it at the top."""
+    if name in ("build_model", "decode"):
+        from spare_twin.nets import registry
+
+        return getattr(registry, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -20,6 +20,7 @@ POSED_ARCHS = ("geo_voxel", "grey_lift")
 TASKS = ("count", "lengths", "e2e", "multitask")
 INPUTS = ("depth", "grey")
 MODES = ("mv", "tmp", "profile")
+LR_SCHEDULES = ("cosine", "one_cycle")
 
 
 @dataclass(frozen=True)
@@ -132,6 +133,9 @@ class TrainConfig:
     same weights recalibrated)."""
     patience: int | None = None
     """Stop early once validation has not improved for this many epochs (None: run all `epochs`)."""
+    lr_schedule: str = "cosine"
+    """"cosine": the rate falls from `lr` to 0 over the epochs (set per epoch); "one_cycle": torch's
+    OneCycleLR, up to `lr` in the first 15 % of the steps and down again (set per batch)."""
     count_weight: float = 1.0
     length_weight: float = 10.0
     """Lengths are squared paper units (~0.01..1); this puts their loss on the count loss's scale."""
@@ -152,7 +156,8 @@ class TrainConfig:
     init_from: str | None = None
     """Fine-tune: start from this checkpoint's weights (same network configuration) instead of random ones."""
     workers: int = 0
-    """DataLoader worker processes (0: load in the training process)."""
+    """DataLoader worker processes (0: load in the training process); for a network that observes its
+    samples once (the profile network), the processes that observe them."""
     threads: int = 0
     """torch intra-op threads (0: leave torch's default)."""
     channels_last: bool = False
@@ -179,6 +184,8 @@ class TrainConfig:
 
         for name in ("epochs", "batch_size"):
             whole(name, 1)
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise SpareTwinError(f"train.lr_schedule {self.lr_schedule!r}: must be one of {', '.join(LR_SCHEDULES)}")
         for name in ("grey_jitter", "channels_last"):
             if not isinstance(getattr(self, name), bool):
                 raise SpareTwinError(f"train.{name} {getattr(self, name)!r}: must be true or false")
@@ -361,7 +368,9 @@ PRESETS: dict[str, Preset] = {
                 dropout=0.1,
                 predict_angles=True,
             ),
-            TrainConfig(epochs=20, batch_size=32, lr=2e-3, angle_weight=2.0, threads=1, workers=2),
+            TrainConfig(
+                epochs=20, batch_size=32, lr=2e-3, angle_weight=2.0, threads=1, workers=2, lr_schedule="one_cycle"
+            ),
             "yaw-free: any recording's object points (`observe.points`) drawn in the chain's own plane "
             "(`observe.profile`, 3 channels); a small 2D CNN predicts count, 7-slot lengths and joint angles. "
             "Trained on rig renders with hand-held-like arcs, fitted sensor noise, registration error, "

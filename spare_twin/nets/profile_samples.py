@@ -24,19 +24,13 @@ Every sample is a pure function of (seed, dataset seed, sequence, time step, var
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass, replace
-from pathlib import Path
 
 import h5py
 import numpy as np
-import torch
-from torch.utils.data import Dataset
 
 from spare_twin.config import MAX_MOVING_LINKS
-from spare_twin.io import read_json
 from spare_twin.measure.layers import LayerMeasurement, measure_profile
-from spare_twin.measure.slots import measurement_slots
 from spare_twin.observe.chain import find_chain
 from spare_twin.observe.points import PosedView
 from spare_twin.observe.profile import ChainProfile
@@ -165,42 +159,3 @@ def stored_sample(
         rng,
         measure,
     )
-
-
-class ProfileSplit(Dataset):
-    """A stored dataset split as the profile network's test samples: one per (sequence, time step),
-    the rig's views as they are, observed and measured like any recording (`rig_sample` with no
-    augmentation; `spare_twin.predict.combine` overrules the network with the measurement, as in `predict`).
-    Items follow docs/design.md's sample layout with x = the profile image (C, H, W); a time step in
-    which the observation finds no chain gets an all-zero image (the network then answers from
-    nothing, and the metrics count it)."""
-
-    def __init__(self, root: str | Path, split: str = "test"):
-        self.root = Path(root)
-        manifest = read_json(self.root / "manifest.json")
-        self.rows = [r for r in manifest["sequences"] if r["split"] == split]
-        self.T = int(manifest["frames"])
-        self._files: dict = {}
-        self._pid = None
-
-    def __len__(self) -> int:
-        return len(self.rows) * self.T
-
-    def _file(self, row) -> h5py.File:
-        if self._pid != os.getpid():  # a DataLoader worker: never reuse the parent's handles
-            self._files, self._pid = {}, os.getpid()
-        if row["index"] not in self._files:
-            self._files[row["index"]] = h5py.File(self.root / row["file"], "r")
-        return self._files[row["index"]]
-
-    def __getitem__(self, i: int) -> dict:
-        if not 0 <= i < len(self):
-            raise IndexError(i)
-        s = stored_sample(self._file(self.rows[i // self.T]), i % self.T, None, None, measure=True)
-        return {
-            "x": torch.from_numpy(s.profile.image),
-            "n_links": torch.tensor(s.n_links, dtype=torch.int64),
-            "lengths_pu": torch.from_numpy(s.lengths_pu),
-            "joint_angles_rad": torch.from_numpy(s.angles_rad),
-            **{k: torch.as_tensor(v) for k, v in measurement_slots(s.measurement).items()},
-        }

@@ -1,11 +1,16 @@
-"""Training the yaw-free profile network (`spare-twin train --preset profile-depth-multitask`).
+"""The yaw-free profile network's samples (`nets.registry` names this its sample source).
 
-The samples (`nets.profile_samples`) cost a full observation each (~0.1 s), far more than a training
-step, so each split is observed once into a cache in the run folder (`samples-<split>.npz`, written
-atomically; an interrupted run observes again only what is missing from a complete cache) and the
-network then trains for many epochs on the cached profiles. Training samples get `variants`
-different hand-held-like captures per rig time step; validation and test samples are the rig's
-views as they are.
+A sample costs a full observation (~0.1 s, and as much again for the layer measurement), far more
+than a training step, so a split is observed once, in several processes, and kept:
+
+- training (`spare-twin train`, the one loop of `nets.train`): into the run folder
+  (`samples-<split>.npz`, written atomically; an interrupted or resumed run reads them again).
+  Training samples get `TRAIN_VARIANTS` hand-held-like captures per rig time step; validation takes
+  every `VAL_FRAME_STRIDE`-th time step, the rig's views as they are.
+- evaluation (`spare-twin evaluate`): every time step, the rig's views as they are, measured as
+  `predict` measures them (`spare_twin.measure`), into the user's cache, keyed by the dataset's
+  manifest and the source of the code that observes and measures: a second evaluation of the same
+  split reads it in seconds, and any change to that code observes again.
 
 Several datasets can be given (e.g. a plain one and a `--sim2real` one with clutter); their splits
 are concatenated.
@@ -13,46 +18,92 @@ are concatenated.
 
 from __future__ import annotations
 
-import json
-import math
+import contextlib
+import hashlib
+import multiprocessing
+import os
 import sys
-import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import h5py
 import numpy as np
 import torch
-from torch import nn
+from torch.utils.data import Dataset
 
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
-from spare_twin.nets import checkpoint as ckpt
-from spare_twin.nets import metrics
-from spare_twin.nets.models import build_model, decode
-from spare_twin.nets.presets import Preset
+from spare_twin.io import read_json, write_bytes_atomic
+from spare_twin.measure.slots import measurement_slots
+from spare_twin.nets.presets import NetConfig, TrainConfig
 from spare_twin.nets.profile_samples import CaptureAugment, stored_sample
-from spare_twin.output import writing
 from spare_twin.recording import npz_bytes
+
+#: Hand-held-like captures per training time step.
+TRAIN_VARIANTS = 1
+#: Validation observes every this many time steps of each sequence.
+VAL_FRAME_STRIDE = 4
+#: The code a cached evaluation split depends on: its source is part of the cache key.
+_OBSERVING_CODE = ("observe", "measure", "nets/profile_samples.py", "nets/profile_train.py")
+_PACKAGE = Path(__file__).resolve().parents[1]
 
 
 def _sequence_samples(job: tuple) -> dict:
-    """Every sample of one sequence (runs in a worker process)."""
-    path, seed, dataset_seed, index, times, variants, augment = job
-    out = {"x": [], "n": [], "lengths": [], "angles": [], "rejected": 0}
+    """Every sample of one sequence (runs in a worker process). A time step where no chain is found is
+    dropped, or with `keep_rejected` kept with the observation's (empty) image, as a test counts it."""
+    path, seed, dataset_seed, index, times, variants, augment, measure, keep_rejected = job
+    out: dict = {"x": [], "n": [], "lengths": [], "angles": [], "rejected": 0}
     aug = CaptureAugment() if augment else None
     with h5py.File(path, "r") as f:
         for t in times:
             for v in range(variants):
-                s = stored_sample(f, t, aug, np.random.default_rng([seed, dataset_seed, index, t, v]))
+                rng = np.random.default_rng([seed, dataset_seed, index, t, v])
+                s = stored_sample(f, t, aug, rng, measure=measure)
                 if s.profile.reason is not None:
                     out["rejected"] += 1
-                    continue
+                    if not keep_rejected:
+                        continue
                 out["x"].append(s.profile.image.astype(np.float16))
                 out["n"].append(s.n_links)
                 out["lengths"].append(s.lengths_pu)
                 out["angles"].append(s.angles_rad)
+                if measure:
+                    for k, val in measurement_slots(s.measurement).items():
+                        out.setdefault(k, []).append(val)
     return out
+
+
+#: Fresh worker processes (not forks of this one), so that they start with the BLAS threads below.
+_SPAWN = multiprocessing.get_context("spawn")
+_BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _single_threaded_blas():
+    """Worker processes started inside get one BLAS thread each: the measurement's least-squares fits
+    take many small SVDs, which threads only slow down once every core runs a worker (measured: 1.6 s
+    against 4.5 s per sample on a busy 2-core machine)."""
+    saved = {k: os.environ.get(k) for k in _BLAS_THREADS}
+    os.environ.update(dict.fromkeys(_BLAS_THREADS, "1"))
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def _jobs(data_dirs: list[Path], split: str, seed: int, variants: int, augment: bool, stride: int, measure, keep):
+    jobs = []
+    for d in data_dirs:
+        manifest = read_json(d / "manifest.json")
+        times = list(range(0, int(manifest["frames"]), stride))
+        for row in manifest["sequences"]:
+            if row["split"] == split:
+                job = (str(d / row["file"]), seed, int(manifest.get("seed", 0)), row["index"], times, variants)
+                jobs.append((*job, augment, measure, keep))
+    return jobs
 
 
 def observe_split(
@@ -64,27 +115,21 @@ def observe_split(
     frame_stride: int = 1,
     workers: int = 1,
     progress: bool = True,
+    measure: bool = False,
+    keep_rejected: bool = False,
 ) -> dict[str, np.ndarray]:
-    """Profiles and labels of one split of every dataset, in a fixed order (any `workers`)."""
+    """Profiles and labels of one split of every dataset, in a fixed order (any `workers`); with
+    `measure`, the layer measurement of each as `measurement_slots` arrays too."""
     from tqdm import tqdm
 
-    jobs = []
-    for d in data_dirs:
-        manifest = read_json(d / "manifest.json")
-        frames = int(manifest["frames"])
-        for row in manifest["sequences"]:
-            if row["split"] == split:
-                times = list(range(0, frames, frame_stride))
-                jobs.append(
-                    (str(d / row["file"]), seed, int(manifest.get("seed", 0)), row["index"], times, variants, augment)
-                )
+    jobs = _jobs([Path(d) for d in data_dirs], split, seed, variants, augment, frame_stride, measure, keep_rejected)
     if not jobs:
         raise SpareTwinError(f"data: no {split} sequences in {', '.join(map(str, data_dirs))}")
     parts = []
     bar = tqdm(total=len(jobs), desc=f"observe {split}", unit="seq", file=sys.stderr, disable=not progress)
     if workers > 1:
-        with ProcessPoolExecutor(workers) as pool:
-            for part in pool.map(_sequence_samples, jobs, chunksize=4):
+        with _single_threaded_blas(), ProcessPoolExecutor(min(workers, len(jobs)), mp_context=_SPAWN) as pool:
+            for part in pool.map(_sequence_samples, jobs):
                 parts.append(part)
                 bar.update()
     else:
@@ -92,162 +137,111 @@ def observe_split(
             parts.append(_sequence_samples(job))
             bar.update()
     bar.close()
-    cat = {
+    if not any(p["n"] for p in parts):
+        raise SpareTwinError(f"data: no chain observed in any {split} sample of {', '.join(map(str, data_dirs))}")
+    out = {
         "x": np.stack([x for p in parts for x in p["x"]]),
         "n": np.array([n for p in parts for n in p["n"]], np.int64),
         "lengths": np.stack([x for p in parts for x in p["lengths"]]).astype(np.float32),
         "angles": np.stack([x for p in parts for x in p["angles"]]).astype(np.float32),
         "rejected": np.array(sum(p["rejected"] for p in parts), np.int64),
     }
-    return cat
+    for k in [k for k in parts[0] if k.startswith("measured_")]:
+        out[k] = np.stack([x for p in parts for x in p[k]])
+    return out
 
 
-def cached_split(out_dir: Path, split: str, **kw) -> dict[str, np.ndarray]:
-    path = out_dir / f"samples-{split}.npz"
-    if path.is_file():
-        with np.load(path) as z:
-            return {k: z[k] for k in z.files}
-    arrays = observe_split(split=split, **kw)
-    write_bytes_atomic(path, npz_bytes(arrays))
-    return arrays
+class ObservedProfiles(Dataset):
+    """One split's observed profile samples in docs/design.md's layout (x = the profile image, C x H x W),
+    observed on first use (`prepare`) or read from `cache` (an .npz; None: kept in memory only)."""
+
+    def __init__(self, data_dirs: list[Path], split: str, cache: Path | None, progress: bool = True, **observe):
+        self.data_dirs, self.split, self.cache, self.progress, self.observe = data_dirs, split, cache, progress, observe
+        self._arrays: dict[str, np.ndarray] | None = None
+
+    def prepare(self) -> dict[str, np.ndarray]:
+        """The split's arrays: the cache's, else observed now (and cached)."""
+        if self._arrays is not None:
+            return self._arrays
+        if self.cache is not None and self.cache.is_file():
+            with np.load(self.cache) as z:
+                self._arrays = {k: z[k] for k in z.files}
+            return self._arrays
+        self._arrays = observe_split(self.data_dirs, self.split, progress=self.progress, **self.observe)
+        if self.cache is not None:
+            try:
+                write_bytes_atomic(self.cache, npz_bytes(self._arrays))
+            except OSError as exc:  # an unwritable cache costs the next run time, not this one its result
+                print(f"note: could not keep the observed samples in {self.cache} ({exc.strerror})", file=sys.stderr)
+        return self._arrays
+
+    @property
+    def rejected(self) -> int:
+        """Time steps (or captures) in which the observation found no chain."""
+        return int(self.prepare()["rejected"])
+
+    def __len__(self) -> int:
+        return len(self.prepare()["n"])
+
+    def __getitem__(self, i: int) -> dict:
+        a = self.prepare()
+        item = {
+            "x": torch.from_numpy(a["x"][i].astype(np.float32)),
+            "n_links": torch.tensor(int(a["n"][i]), dtype=torch.int64),
+            "lengths_pu": torch.from_numpy(a["lengths"][i]),
+            "joint_angles_rad": torch.from_numpy(a["angles"][i]),
+        }
+        item.update({k: torch.as_tensor(a[k][i]) for k in a if k.startswith("measured_")})
+        return item
 
 
-def loss_of(out: dict, n: torch.Tensor, lengths: torch.Tensor, angles: torch.Tensor, tr) -> torch.Tensor:
-    """Cross-entropy of the count + length_weight * squared error of the 7-slot lengths +
-    angle_weight * squared error of (sin, cos) of the joints that exist."""
-    loss = tr.count_weight * nn.functional.cross_entropy(out["count_logits"], n - 1)
-    loss = loss + tr.length_weight * ((out["lengths"] - lengths) ** 2).sum(1).mean()
-    if "angles_sincos" in out:
-        target = torch.stack([torch.sin(angles), torch.cos(angles)], -1)
-        exists = (torch.arange(angles.shape[1])[None] < n[:, None]).float()
-        err = ((out["angles_sincos"] - target) ** 2).sum(-1) * exists
-        loss = loss + tr.angle_weight * err.sum(1).mean()
-    return loss
-
-
-def scores(model, net, data: dict, batch_size: int = 256) -> dict:
-    """Count accuracy, end-to-end E_L (paper units) and joint-angle error (deg, right counts) on cached samples."""
-    model.eval()
-    pred_n, pred_len, pred_ang = [], [], []
-    with torch.no_grad():
-        for i in range(0, len(data["n"]), batch_size):
-            x = torch.from_numpy(data["x"][i : i + batch_size].astype(np.float32))
-            res = decode(model, net, {"x": x})
-            pred_n.append(res["pred_n"].numpy())
-            pred_len.append(res["lengths_e2e"].numpy())
-            pred_ang.append(res["angles"].numpy())
-    pn, pl, pa = np.concatenate(pred_n), np.concatenate(pred_len), np.concatenate(pred_ang)
-    n = data["n"]
-    right = pn == n
-    diff = np.abs((pa - data["angles"] + math.pi) % (2 * math.pi) - math.pi)
-    exists = np.arange(6)[None] < n[:, None]
-    ang = float(np.degrees(diff[right[:, None] & exists].mean())) if right.any() else float("nan")
-    return {
-        "count_accuracy": metrics.count_accuracy(n, pn),
-        "E_L": float(metrics.length_errors(data["lengths"], pl, n, pn).mean()),
-        "angle_error_deg": ang,
-        "instances": int(len(n)),
-    }
-
-
-def train_profile(
-    preset: Preset,
-    data_dirs: list[str | Path],
-    out_dir: str | Path,
-    variants: int = 1,
-    workers: int = 1,
-    command: str = "",
-    progress: bool = True,
-    force: bool = False,
-) -> dict:
-    """Observe the splits once (cached), train, keep the best epoch by validation; writes model.pt and
-    history.json into `out_dir` (the output rule of `spare_twin.output`: an interrupted run keeps its
-    sample caches, and the next run starts from them) and returns the summary."""
-    data_dirs = [Path(d) for d in data_dirs]
+def _check_datasets(data_dirs: list[Path]) -> None:
     for d in data_dirs:
+        if not d.is_dir():
+            raise SpareTwinError(f"data_dir {d}: no such folder")
         if not (d / "manifest.json").is_file():
-            raise SpareTwinError(f"data_dir {d}: not a dataset (no manifest.json; make one with spare-twin dataset)")
-    with writing(out_dir, "train", inputs=data_dirs, force=force, resumable=True) as run_dir:
-        summary = _train_profile(preset, data_dirs, Path(run_dir), variants, workers, command, progress)
-    return {k: v.replace(str(run_dir), str(out_dir)) if isinstance(v, str) else v for k, v in summary.items()}
+            raise SpareTwinError(
+                f"data_dir {d}: the profile network needs a spare-twin dataset of depth views (no manifest.json)"
+            )
 
 
-def _train_profile(preset, data_dirs, out_dir: Path, variants, workers, command, progress) -> dict:
-    from tqdm import tqdm
+def evaluation_cache(data_dirs: list[Path], split: str) -> Path:
+    """Where an evaluated split's observation is kept: the user's cache ($XDG_CACHE_HOME, else
+    ~/.cache), named by a hash of the datasets' manifests, the split and the observing code."""
+    h = hashlib.sha256(split.encode())
+    for d in data_dirs:
+        h.update((d / "manifest.json").read_bytes())
+    for part in _OBSERVING_CODE:
+        path = _PACKAGE / part
+        for f in sorted(path.rglob("*.py")) if path.is_dir() else [path]:
+            h.update(f.relative_to(_PACKAGE).as_posix().encode() + f.read_bytes())
+    root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "spare-twin" / "observed"
+    return root / f"{split}-{h.hexdigest()[:20]}.npz"
 
-    net, tr = preset.net, preset.train
-    out_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    common = dict(out_dir=out_dir, data_dirs=data_dirs, seed=tr.seed, workers=workers, progress=progress)
-    train = cached_split(split="train", variants=variants, augment=True, **common)
-    val = cached_split(split="val", variants=1, augment=False, frame_stride=4, **common)
-    observe_s = time.perf_counter() - t0
-    torch.manual_seed(tr.seed)
-    if tr.threads:
-        torch.set_num_threads(tr.threads)
-    model = build_model(net)
-    opt = torch.optim.AdamW(model.parameters(), lr=tr.lr, weight_decay=tr.weight_decay)
-    steps = tr.epochs * math.ceil(len(train["n"]) / tr.batch_size)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, tr.lr, total_steps=steps, pct_start=0.15)
-    x_all = torch.from_numpy(train["x"].astype(np.float32))
-    n_all, len_all = torch.from_numpy(train["n"]), torch.from_numpy(train["lengths"])
-    ang_all = torch.from_numpy(train["angles"])
-    history, best, best_score, best_epoch = [], None, -math.inf, 0
-    t1 = time.perf_counter()
-    gen = torch.Generator().manual_seed(tr.seed)
-    for epoch in range(tr.epochs):
-        model.train()
-        order = torch.randperm(len(n_all), generator=gen)
-        total = 0.0
-        bar = tqdm(
-            range(0, len(order), tr.batch_size),
-            desc=f"epoch {epoch + 1}/{tr.epochs}",
-            leave=False,
-            file=sys.stderr,
-            disable=not progress,
-        )
-        for i in bar:
-            idx = order[i : i + tr.batch_size]
-            out = model(x_all[idx])
-            loss = loss_of(out, n_all[idx], len_all[idx], ang_all[idx], tr)
-            opt.zero_grad()
-            loss.backward()
-            opt.step()
-            sched.step()
-            total += loss.item() * len(idx)
-        row = {
-            "epoch": epoch + 1,
-            "loss": total / len(n_all),
-            **{f"val_{k}": v for k, v in scores(model, net, val).items()},
-        }
-        history.append(row)
-        score = row["val_count_accuracy"] - row["val_E_L"]
-        if score > best_score:
-            best_score, best_epoch = score, epoch + 1
-            best = {k: v.detach().clone() for k, v in model.state_dict().items()}
-        print(json.dumps(row), file=sys.stderr)
-    model.load_state_dict(best)
-    train_s = time.perf_counter() - t1
-    meta = ckpt.new_meta(",".join(map(str, data_dirs)), None, tr.seed, command)
-    meta.update(
-        {
-            "input": "profile",
-            "training_samples": int(len(n_all)),
-            "rejected_samples": int(train["rejected"]),
-            "observe_s": round(observe_s, 1),
-            "train_time_s": round(train_s, 1),
-            "variants": variants,
-            "epochs_trained": tr.epochs,
-            "parameters": sum(p.numel() for p in model.parameters()),
-        }
+
+def _evaluation_workers() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def profile_samples(
+    data_dirs, split: str, net: NetConfig, train: TrainConfig | None = None, run_dir=None, progress: bool = True
+) -> ObservedProfiles:
+    """The registry's sample source of the profile network (see the module doc): with `train`, the
+    training run's (observed into `run_dir` by `train.workers` processes); without, the evaluation's
+    (every time step, measured, cached for the user, observed by every core)."""
+    data_dirs = [Path(d) for d in data_dirs]
+    _check_datasets(data_dirs)
+    if train is None:
+        cache = evaluation_cache(data_dirs, split)
+        observe = dict(variants=1, augment=False, measure=True, keep_rejected=True, workers=_evaluation_workers())
+        return ObservedProfiles(data_dirs, split, cache, progress, seed=0, **observe)
+    cache = None if run_dir is None else Path(run_dir) / f"samples-{split}.npz"
+    augment = split == "train"
+    observe = dict(
+        seed=train.seed,
+        variants=TRAIN_VARIANTS if augment else 1,
+        augment=augment,
+        frame_stride=1 if augment else VAL_FRAME_STRIDE,
+        workers=max(train.workers, 1),
     )
-    ckpt.save(out_dir / "model.pt", ckpt.model_record(preset.name, net, tr, model, meta))
-    write_json_atomic(out_dir / "history.json", {"history": history, "meta": meta})
-    return {
-        "model": str(out_dir / "model.pt"),
-        "best_epoch": best_epoch,
-        "train_time_s": train_s,
-        "learning_curve": str(out_dir / "history.json"),
-        "history": history,
-        **meta,
-    }
+    return ObservedProfiles(data_dirs, split, cache, progress, **observe)

@@ -31,17 +31,19 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
-from spare_twin.nets.data import dataset_rig, open_on_the_fly, open_split
+from spare_twin.nets.data import dataset_rig, open_on_the_fly
 from spare_twin.nets.distributed import Group, session
-from spare_twin.nets.measured import overrule
-from spare_twin.nets.models import build_model, decode, input_norms, model_inputs
+from spare_twin.nets.models import input_norms, model_inputs
 from spare_twin.nets.presets import NetConfig, Preset, TrainConfig, net_from_dict
+from spare_twin.nets.registry import architecture, build_model, decode
 from spare_twin.output import writing
 
 
 def compute_loss(net: NetConfig, tr: TrainConfig, out: dict, batch: dict, device) -> torch.Tensor:
     """The task's loss. Lengths: squared error summed over the slots the true count uses (E_L's
-    shape), except the paper's plain e2e regressor, which regresses all 7 zero-padded slots."""
+    shape), or over all 7 zero-padded slots for the networks that regress them so (the registry's
+    `regresses_padded_slots`). Joint angles: squared error of the angles, or of their (sin, cos)
+    where the network predicts those (no jump at +-pi), over the joints that exist."""
     n = batch["n_links"].to(device)
     loss = torch.zeros((), device=device)
     if "count_logits" in out:
@@ -51,14 +53,18 @@ def compute_loss(net: NetConfig, tr: TrainConfig, out: dict, batch: dict, device
     if "lengths" in out:
         target = batch["lengths_pu"].to(device, torch.float32)
         err = (out["lengths"] - target) ** 2
-        if not (net.task == "e2e" and net.arch == "conv3d" or net.arch == "cnn_lstm"):
+        if not architecture(net).regresses_padded_slots:
             err = err * (torch.arange(7, device=device)[None] <= n[:, None])
         loss = loss + tr.length_weight * err.sum(1).mean()
     if "angles" in out and "joint_angles_rad" in batch:
         ang = batch["joint_angles_rad"].to(device, torch.float32)
         if ang.dim() == 2:
-            mask = torch.arange(6, device=device)[None] < n[:, None]
-            loss = loss + tr.angle_weight * (((out["angles"] - ang) ** 2) * mask).sum(1).mean()
+            exists = torch.arange(6, device=device)[None] < n[:, None]
+            if "angles_sincos" in out:
+                err = ((out["angles_sincos"] - torch.stack([torch.sin(ang), torch.cos(ang)], -1)) ** 2).sum(-1)
+            else:
+                err = (out["angles"] - ang) ** 2
+            loss = loss + tr.angle_weight * (err * exists).sum(1).mean()
     return loss
 
 
@@ -76,19 +82,22 @@ def to_channels_last(model: nn.Module) -> nn.Module:
 MAX_GRAD_NORM = 5.0
 
 
-def train_step(model, net: NetConfig, tr: TrainConfig, opt, batch: dict, device) -> torch.Tensor:
-    """One optimiser step on `batch` (forward, loss, backward, clipping, step); returns the loss."""
+def train_step(model, net: NetConfig, tr: TrainConfig, opt, batch: dict, device, schedule=None) -> torch.Tensor:
+    """One optimiser step on `batch` (forward, loss, backward, clipping, step, and the learning-rate
+    `schedule`'s step where it moves per batch); returns the loss."""
     loss = compute_loss(net, tr, forward_train(model, net, batch, device), batch, device)
     opt.zero_grad(set_to_none=True)
     loss.backward()
     nn.utils.clip_grad_norm_(model.parameters(), MAX_GRAD_NORM)
     opt.step()
+    if schedule is not None:
+        schedule.step()
     return loss
 
 
 def forward_train(model, net: NetConfig, batch: dict, device) -> dict:
     inputs = model_inputs(batch, device)
-    if net.arch in ("conv3d_per_n", "naive"):  # regressors are routed by the true count in training
+    if architecture(net).takes_count:  # regressors are routed by the true count in training
         return model(**inputs, n_links=batch["n_links"].to(device))
     return model(**inputs)
 
@@ -109,9 +118,10 @@ def measure_normalization(model, ds, seed: int, samples: int = 64) -> None:
 
 @torch.no_grad()
 def run_inference(
-    model, net: NetConfig, ds, device, batch_size: int, indices=None, desc: str = "eval", progress=True
+    model, net: NetConfig, ds, device, batch_size: int, indices=None, desc: str = "eval", progress=True, carry=()
 ) -> dict:
-    """Predictions and labels over (a subset of) a dataset: numpy arrays for metrics.py."""
+    """Predictions and labels over (a subset of) a dataset: numpy arrays for metrics.py, with the
+    samples' fields named in `carry` beside them (e.g. the measurement a sample holds)."""
     from tqdm import tqdm
 
     model.eval()
@@ -121,8 +131,7 @@ def run_inference(
     for batch in tqdm(loader, desc=desc, leave=False, file=sys.stderr, disable=not progress):
         n = batch["n_links"].to(device)
         res = decode(model, net, model_inputs(batch, device), true_n=n)
-        if "measured_n" in batch:  # the profile network's samples: predict's answer, measurement first
-            res = overrule(res, batch)
+        res.update({k: batch[k] for k in carry})
         res["true_n"] = n
         res["true_lengths"] = batch["lengths_pu"]
         for k, v in res.items():
@@ -211,6 +220,8 @@ def _has_batchnorm(model) -> bool:
 def _epoch_loader(train_src, data_dir, net, tr: TrainConfig, epoch: int, on_the_fly: bool, group: Group):
     """This process's share of epoch `epoch`: (loader, batches to take). Every rank takes the same number
     of batches of the same sizes, so no rank waits in a gradient all-reduce that another skipped."""
+    # observed samples are in memory already: loader processes would only copy them
+    workers = 0 if architecture(net).observed_samples else tr.workers
     if on_the_fly:
         n_ep = tr.samples_per_epoch or len(train_src)
         src = open_on_the_fly(
@@ -225,26 +236,32 @@ def _epoch_loader(train_src, data_dir, net, tr: TrainConfig, epoch: int, on_the_
         subset,
         batch_size=tr.batch_size,
         sampler=sampler,
-        num_workers=tr.workers,
+        num_workers=workers,
         drop_last=len(sampler) > tr.batch_size,
     )
     return loader, len(loader)
 
 
 #: What a run folder holds (and the temporaries of their atomic writes): a folder of these is a run.
-RUN_FILES = ("last.pt", "best.pt", "model.pt", "history.json", "learning_curve.png", "MODEL_CARD.md")
+#: samples-<split>.npz: the observed samples of the networks that observe theirs (`nets.profile_train`).
+RUN_FILES = ("last.pt", "best.pt", "model.pt", "history.json", "learning_curve.png", "MODEL_CARD.md", "samples-")
 
 
-def _touches_data(out_dir: Path, data_dir) -> bool:
-    """The run folder is the data folder, inside it or around it: never written, force or not."""
-    out, data = out_dir.resolve(), Path(data_dir).resolve()
-    return out == data or data in out.parents or out in data.parents
+def _touches_data(out_dir: Path, data_dirs: list[Path]) -> Path | None:
+    """The data folder the run folder is, is inside or holds (never written, force or not), or None."""
+    out = out_dir.resolve()
+    for d in data_dirs:
+        data = Path(d).resolve()
+        if out == data or data in out.parents or out in data.parents:
+            return Path(d)
+    return None
 
 
-def _run_folder_problem(out_dir: Path, data_dir, resume: bool) -> str | None:
+def _run_folder_problem(out_dir: Path, data_dirs: list[Path], resume: bool) -> str | None:
     last_path = out_dir / "last.pt"
-    if _touches_data(out_dir, data_dir):
-        return f"out_dir {out_dir}: is, is inside or holds the data folder {data_dir}; write the run elsewhere"
+    touched = _touches_data(out_dir, data_dirs)
+    if touched is not None:
+        return f"out_dir {out_dir}: is, is inside or holds the data folder {touched}; write the run elsewhere"
     if resume:
         return None if last_path.is_file() else f"resume: {last_path} does not exist (nothing to resume)"
     if last_path.exists():
@@ -258,12 +275,12 @@ def _run_folder_problem(out_dir: Path, data_dir, resume: bool) -> str | None:
     return None
 
 
-def _start(data_dir, out_dir: Path, resume: bool, group: Group) -> dict | None:
+def _start(data_dirs: list[Path], out_dir: Path, resume: bool, group: Group) -> dict | None:
     """Rank 0 checks the run folder, creates it or reads last.pt (on resume); every rank gets the state or
     the error."""
     error, state = None, None
     if group.is_main:
-        error = _run_folder_problem(out_dir, data_dir, resume)
+        error = _run_folder_problem(out_dir, data_dirs, resume)
         if error is None and resume:
             try:
                 state = ckpt.load(out_dir / "last.pt", "cpu")
@@ -289,19 +306,27 @@ def train(
     progress: bool = True,
     force: bool = False,
 ) -> dict:
-    """Train `preset` on `data_dir` into `out_dir`: in this process, or as one rank of a torchrun group
-    (every rank returns rank 0's summary).
+    """Train `preset` on `data_dir` (a dataset folder, or a list of them for a network that takes
+    several) into `out_dir`: in this process, or as one rank of a torchrun group (every rank returns
+    rank 0's summary). Every architecture trains through this one loop (`nets.registry` says where
+    its samples come from).
 
     `out_dir` must be absent, empty or (with `resume`) a run to continue; with `force`, a folder that is
     none of these (another run, a folder of yours) is replaced by the new run once it is complete: rank 0
     trains in a hidden sibling folder and swaps it in at the end, so an interrupted run leaves it whole."""
     out_dir = Path(out_dir)
+    data_dirs = [Path(d) for d in (data_dir if isinstance(data_dir, (list, tuple)) else [data_dir])]
+    arch = architecture(preset.net)
+    if not data_dirs or (len(data_dirs) > 1 and not arch.several_datasets):
+        raise SpareTwinError(f"data_dir {','.join(map(str, data_dirs))}: the {arch.name} network trains on one dataset")
+    if on_the_fly and arch.observed_samples:
+        raise SpareTwinError(f"on_the_fly: the {arch.name} network trains on samples it observes once, not on the fly")
     with session(device) as (group, dev):
-        if force and not resume and group.is_main and _replaceable(out_dir, data_dir):
-            with writing(out_dir, "train", inputs=[data_dir], force=True) as fresh:
-                summary = _train(preset, data_dir, fresh, dev, group, on_the_fly, resume, command, progress)
+        if force and not resume and group.is_main and _replaceable(out_dir, data_dirs):
+            with writing(out_dir, "train", inputs=data_dirs, force=True) as fresh:
+                summary = _train(preset, data_dirs, fresh, dev, group, on_the_fly, resume, command, progress)
             return {k: v.replace(str(fresh), str(out_dir)) if isinstance(v, str) else v for k, v in summary.items()}
-        return _train(preset, data_dir, out_dir, dev, group, on_the_fly, resume, command, progress)
+        return _train(preset, data_dirs, out_dir, dev, group, on_the_fly, resume, command, progress)
 
 
 def _same_net(checkpoint: dict, net: NetConfig) -> bool:
@@ -312,12 +337,52 @@ def _same_net(checkpoint: dict, net: NetConfig) -> bool:
         return False
 
 
-def _replaceable(out_dir: Path, data_dir) -> bool:
+def _replaceable(out_dir: Path, data_dirs: list[Path]) -> bool:
     """A run folder problem that `force` may settle: any but touching the data folder."""
-    return not _touches_data(out_dir, data_dir) and _run_folder_problem(out_dir, data_dir, resume=False) is not None
+    return not _touches_data(out_dir, data_dirs) and _run_folder_problem(out_dir, data_dirs, resume=False) is not None
 
 
-def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resume, command, progress) -> dict:
+def _open_sources(net: NetConfig, tr: TrainConfig, data_dirs: list[Path], out_dir: Path, main: bool, progress: bool):
+    """(training samples, validation samples or None): the registry's sample source, before the run
+    folder is touched (a bad data folder is refused first). Samples observed into the run folder are
+    observed later, by `_observe_sources`."""
+    samples = architecture(net).samples
+    train_src = samples(data_dirs, "train", net, tr, out_dir, progress)  # with on_the_fly: only its size is used
+    val_ds = None
+    if main:
+        try:
+            val_ds = samples(data_dirs, "val", net, tr, out_dir, progress)
+        except SpareTwinError:
+            val_ds = None  # a folder without a validation split: select on the training loss instead
+    return train_src, val_ds
+
+
+def _observe_sources(net: NetConfig, train_src, val_ds, group: Group) -> None:
+    """Rank 0 observes (or reads back) the samples of a network that observes its own, into the run
+    folder; then every other rank reads them from there."""
+    if not architecture(net).observed_samples:
+        return
+    if group.is_main:
+        for src in (train_src, val_ds):
+            if src is not None:
+                src.prepare()
+    group.barrier()
+    train_src.prepare()
+
+
+#: The share of a one-cycle run spent raising the learning rate.
+ONE_CYCLE_WARMUP = 0.15
+
+
+def _one_cycle(opt, tr: TrainConfig, steps_per_epoch: int):
+    """`train.lr_schedule` "one_cycle": torch's OneCycleLR over the whole run, stepped per batch (its
+    state goes into last.pt, so a resumed run goes on with the same rates). The default, "cosine",
+    is set per epoch in the loop."""
+    total = max(tr.epochs * steps_per_epoch, 1)
+    return torch.optim.lr_scheduler.OneCycleLR(opt, tr.lr, total_steps=total, pct_start=ONE_CYCLE_WARMUP)
+
+
+def _train(preset, data_dirs, out_dir: Path, dev, group: Group, on_the_fly, resume, command, progress) -> dict:
     from tqdm import tqdm
 
     net, tr = preset.net, preset.train
@@ -326,22 +391,24 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
     if tr.threads:
         torch.set_num_threads(tr.threads)
     last_path = out_dir / "last.pt"
-    train_src = open_split(data_dir, "train", net, augment=tr)  # with on_the_fly: only its size is used
-    val_ds = None
-    if main:
-        try:
-            val_ds = open_split(data_dir, "val", net)
-        except SpareTwinError:
-            val_ds = None  # a folder without a validation split: select on the training loss instead
-    state = _start(data_dir, out_dir, resume, group)
+    data_dir = data_dirs[0] if len(data_dirs) == 1 else None
+    train_src, val_ds = _open_sources(net, tr, data_dirs, out_dir, main, progress)
+    state = _start(data_dirs, out_dir, resume, group)
+    _observe_sources(net, train_src, val_ds, group)
 
     torch.manual_seed(tr.seed)
     np.random.seed(tr.seed)
     model = build_model(net).to(dev)
     opt = torch.optim.AdamW(model.parameters(), lr=tr.lr, weight_decay=tr.weight_decay)
-    meta = ckpt.new_meta(data_dir, dataset_rig(data_dir), tr.seed, command)
+    schedule = None
+    if tr.lr_schedule == "one_cycle":
+        steps_per_epoch = _epoch_loader(train_src, data_dir, net, tr, 0, on_the_fly, group)[1]
+        schedule = _one_cycle(opt, tr, steps_per_epoch)
+    meta = ckpt.new_meta(",".join(map(str, data_dirs)), dataset_rig(data_dir) if data_dir else None, tr.seed, command)
     meta["parameters"] = int(sum(p.numel() for p in model.parameters()))
     meta["on_the_fly"] = bool(on_the_fly)
+    if architecture(net).observed_samples:
+        meta.update(training_samples=len(train_src), rejected_samples=train_src.rejected)
     if group.world_size > 1:
         meta["data_parallel_processes"] = group.world_size
     history: list[dict] = []
@@ -351,7 +418,9 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
         if state.get("preset") != preset.name or not _same_net(state, net):
             raise SpareTwinError(f"resume: {last_path} was trained with a different network configuration")
         model.load_state_dict(state["state_dict"])
-        opt.load_state_dict(state["optimizer"])
+        opt.load_state_dict(state["optimizer"])  # after the schedule is made: its rates are the run's
+        if schedule is not None:
+            schedule.load_state_dict(state["scheduler"])
         if main:
             torch.set_rng_state(state["rng"])
         history, start_epoch = state["history"], state["epoch"] + 1
@@ -385,7 +454,9 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
             : tr.val_samples
         ].tolist()
 
-    writer = _RunWriter(preset, core, opt, val_ds, val_idx, dev, out_dir, progress, train_src) if main else None
+    writer = (
+        _RunWriter(preset, core, opt, schedule, val_ds, val_idx, dev, out_dir, progress, train_src) if main else None
+    )
     for epoch in range(start_epoch, tr.epochs):
         if tr.patience is not None and group.broadcast(epochs_since_best(history) if main else None) >= tr.patience:
             if progress:
@@ -394,9 +465,12 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
         t0 = time.time()
         if group.rank:
             torch.manual_seed(tr.seed * 1_000_003 + epoch * 1_009 + group.rank)
-        lr = tr.lr * 0.5 * (1 + math.cos(math.pi * epoch / tr.epochs))  # cosine, recomputed: resume-safe
-        for g in opt.param_groups:
-            g["lr"] = lr
+        if schedule is None:
+            lr = tr.lr * 0.5 * (1 + math.cos(math.pi * epoch / tr.epochs))  # cosine, recomputed: resume-safe
+            for g in opt.param_groups:
+                g["lr"] = lr
+        else:
+            lr = opt.param_groups[0]["lr"]  # the one-cycle rate at the epoch's first step
         loader, n_batches = _epoch_loader(train_src, data_dir, net, tr, epoch, on_the_fly, group)
         model.train()
         losses = []
@@ -408,7 +482,7 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
                 break
             if batch["x"].shape[0] < 2 and _has_batchnorm(core):
                 continue  # BatchNorm cannot train on a batch of one (the same batch on every rank)
-            loss = train_step(model, net, tr, opt, batch, dev)
+            loss = train_step(model, net, tr, opt, batch, dev, schedule)
             losses.append(float(loss.detach()))
             bar.update(1)
             bar.set_postfix(loss=f"{np.mean(losses[-20:]):.4f}")
@@ -431,8 +505,9 @@ def _train(preset, data_dir, out_dir: Path, dev, group: Group, on_the_fly, resum
 class _RunWriter:
     """Rank 0's side of every epoch: validate, keep the best model, write last.pt, the history and the curve."""
 
-    def __init__(self, preset: Preset, core, opt, val_ds, val_idx, dev, out_dir: Path, progress: bool, train_ds):
+    def __init__(self, preset: Preset, core, opt, schedule, val_ds, val_idx, dev, out_dir: Path, progress, train_ds):
         self.preset, self.core, self.opt, self.dev, self.train_ds = preset, core, opt, dev, train_ds
+        self.schedule = schedule
         self.val_ds, self.val_idx, self.out_dir, self.progress = val_ds, val_idx, out_dir, progress
 
     def end_epoch(self, row: dict, history: list, meta: dict, best_score: float, train_time_s: float) -> float:
@@ -466,6 +541,8 @@ class _RunWriter:
             best_score=best_score,
             train_time_s=train_time_s,
         )
+        if self.schedule is not None:
+            state["scheduler"] = self.schedule.state_dict()
         ckpt.save(out_dir / "last.pt", state)  # written last: a crash before here repeats this epoch on resume
         write_json_atomic(out_dir / "history.json", history)
         metrics.write_learning_curve_png(history, out_dir / "learning_curve.png", name)

@@ -19,8 +19,8 @@ from torch.utils.data import DataLoader, Subset
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets.data import open_split
-from spare_twin.nets.models import build_model
 from spare_twin.nets.presets import get_preset
+from spare_twin.nets.registry import build_model
 from spare_twin.nets.train import measure_normalization, to_channels_last, train_step
 
 
