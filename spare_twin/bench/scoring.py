@@ -164,12 +164,17 @@ def write_png(table: dict, path: str | Path) -> Path:
     font = cv2.FONT_HERSHEY_SIMPLEX
     cv2.putText(img, "count accuracy", (x0, y0 - 14), font, 0.5, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.rectangle(img, (x0, y0), (width - 20, y0 + h), (0, 0, 0), 1)
+    for v in (0.0, 0.5, 1.0):
+        cv2.putText(img, f"{v:.1f}", (x0 - 34, int(y0 + h - h * v) + 4), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     slot = (width - 20 - x0) / len(rows)
     for i, row in enumerate(rows):
         for j, side in enumerate(SIDES):
             v = table["overall"]["answers"][row][side]["count_accuracy"]
             bx = int(x0 + i * slot + slot * (0.12 + 0.26 * j))
-            by = int(y0 + h - h * (0.0 if v is None or math.isnan(v) else min(v, 1.0)))
+            if v is None:  # refused everywhere: no bar, and a word saying why
+                cv2.putText(img, "refused", (bx, y0 + h - 6), font, 0.3, (0, 0, 0), 1, cv2.LINE_AA)
+                continue
+            by = int(y0 + h - h * (0.0 if math.isnan(v) else min(v, 1.0)))
             cv2.rectangle(img, (bx, by), (bx + int(slot * 0.24), y0 + h), colours[side], -1)
         label = row if len(row) <= 18 else row[:17] + "."
         cv2.putText(img, label, (int(x0 + i * slot + 4), y0 + h + 18), font, 0.4, (0, 0, 0), 1, cv2.LINE_AA)

@@ -179,7 +179,7 @@ def bench_sim2real(
         raise SpareTwinError(f"workers {workers!r}: must be a whole number, at least 1")
     combined_model = model_of(COMBINED, ckpt.default_model("predict"))
     nets = resolve_models(models, cfg.frames[0])
-    with writing(out, BENCH, (), force, resumable=True) as tmp:
+    with writing(out, BENCH, (combined_model.path, *(m.path for m in nets)), force, resumable=True) as tmp:
         jobs = [(tmp / c.name, c, cfg, combined_model, nets) for c in settings]
         results = _run_all(jobs, workers, progress)
         table = bench_table(results, [m.name for m in nets])
