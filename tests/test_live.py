@@ -38,7 +38,7 @@ def replayed(sweep, tmp_path_factory):
     root = tmp_path_factory.mktemp("live")
     out, rrd = root / "rec", root / "live.rrd"
     argv = ["live", "--replay", str(sweep), "--speed", "0", "--jsonl", "--rrd", str(rrd), "--out", str(out)]
-    # 16 views an update (default 8, for the rate): the last update then reads every frame, as predict does
+    # the last update, once the stream has ended, reads 16 views: every frame placed, as predict reads them
     cmd = [str(SPARE_TWIN), *argv, "--update-s", "0.2", "--stable-s", "0.3", "--views", "16"]
     live = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert live.returncode == 0, live.stderr[-2000:]

@@ -42,7 +42,13 @@ def register(sub) -> None:
     p.add_argument("--until-stable", action="store_true", help="stop the stream once the answer is 'enough'")
     p.add_argument("--stable-s", type=float, default=3.0, help="seconds the answer must hold (default: 3)")
     p.add_argument("--update-s", type=float, default=1.0, help="seconds between estimates at most (default: 1)")
-    p.add_argument("--views", type=int, default=8, help="placed frames each update reads (default: 8)")
+    p.add_argument(
+        "--views",
+        type=int,
+        default=16,
+        help="the most placed frames an update reads; updates start with 8 and read more or fewer to keep the "
+        "rate, the last one (after the stream) this many (default: 16)",
+    )
     p.add_argument(
         "--answer", default="combined", choices=("combined", "network", "measurement"), help="as predict's --answer"
     )

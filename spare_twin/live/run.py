@@ -25,7 +25,7 @@ def live(
     until_stable: bool = False,
     stable_s: float = 3.0,
     update_s: float = 1.0,
-    views: int = 8,
+    views: int = 16,
     answer: str = "combined",
     model: str | Path | None = None,
     print_scale: float = 0.08,

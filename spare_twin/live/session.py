@@ -55,10 +55,14 @@ class LiveConfig:
     """Stop the stream at "enough"."""
     queue_frames: int = 2
     """Frames waiting to be placed; more are dropped from the estimate (never from the recording)."""
-    views: int = 8
-    """Placed frames an update reads (spread evenly over the stream so far): 8 views cost about half of
-    16 (2.1 s against 4.0-4.8 s for 640 x 480 frames on the loaded 2-core machine) and measured the same
-    lengths within 0.005 paper units."""
+    views: int = 16
+    """The most placed frames an update reads (spread evenly over the stream so far). Updates start
+    with `start_views` and read 2 more while an update takes less than half of `update_s`, 2 fewer
+    (down to 4) while it takes longer than `update_s`: the rate holds on a busy machine and a quiet one
+    reads more (on a 640 x 480 loop, 8 views measured within 0.015 pu of the truth, 16 within 0.007;
+    an update of 8 took 1.2-2.4 s on the loaded 2-core machine, 16 twice that). The last update, once
+    the stream has ended, reads `views`."""
+    start_views: int = 8
     first_views: int = 3
     """No update before this many frames are placed (two views show too little of the object to count)."""
     work_width: int = 320
@@ -71,7 +75,7 @@ class LiveConfig:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise SpareTwinError(f"{name} {v!r}: must be a positive number of seconds")
-        for name, least in (("queue_frames", 1), ("views", 2), ("work_width", 32), ("max_kept", 4)):
+        for name, least in (("queue_frames", 1), ("views", 2), ("start_views", 2), ("work_width", 32), ("max_kept", 4)):
             v = getattr(self, name)
             if not isinstance(v, int) or isinstance(v, bool) or v < least:
                 raise SpareTwinError(f"{name} {v!r}: must be a whole number of at least {least}")
@@ -283,25 +287,42 @@ def _track(tracker: Tracker, q: queue.Queue, sh: _Shared, view) -> None:
             return
 
 
+#: Fewest views an update reads when updates take too long.
+MIN_VIEWS = 4
+
+
+def _adapted(views: int, took_s: float, cfg: LiveConfig) -> int:
+    """The views the next update reads, after one that took `took_s` (`LiveConfig.views`)."""
+    if took_s < 0.5 * cfg.update_s:
+        return min(cfg.views, views + 2)
+    if took_s > cfg.update_s:
+        return max(min(MIN_VIEWS, cfg.views), views - 2)
+    return views
+
+
 def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Shared, res: LiveResult, on_update, say,
                    view) -> None:  # fmt: skip
-    """The estimator thread: an update every `update_s` while new frames are placed."""
-    used_placed, next_at = 0, None
+    """The estimator thread: an update every `update_s` while new frames are placed, and a last one
+    from `views` placed frames once the tracker has ended."""
+    used_placed, next_at, views, last_full = 0, None, min(cfg.start_views, cfg.views), False
     try:
-        while not sh.stop.is_set() and not (sh.tracked.is_set() and tracker.placed == used_placed):
-            now = time.monotonic()
-            if next_at is not None and now < next_at:
-                sh.stop.wait(min(next_at - now, 0.05))
-                continue
+        while not sh.stop.is_set():
+            ended = sh.tracked.is_set()  # read before the snapshot: then every frame placed is in it
             with sh.lock:
                 kept, placed, received, dropped = list(tracker.kept), tracker.placed, sh.received, sh.dropped
-            if len(kept) < min(cfg.first_views, cfg.views) or placed == used_placed:
+            if ended and (last_full or len(kept) < 2):
+                return
+            now = time.monotonic()
+            waiting = next_at is not None and now < next_at
+            if not ended and (waiting or len(kept) < min(cfg.first_views, cfg.views) or placed == used_placed):
                 sh.stop.wait(0.05)
                 continue
             next_at = now + cfg.update_s
-            pred = estimate_from_frames(est, kept, cfg.views)
-            used_placed = placed
-            u = Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), cfg.views), received, placed, dropped)
+            n_views = cfg.views if ended else views  # the stream has ended: no rate to keep
+            pred = estimate_from_frames(est, kept, n_views)
+            views = _adapted(views, time.monotonic() - now, cfg)
+            used_placed, last_full = placed, ended
+            u = Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), n_views), received, placed, dropped)
             res.updates.append(u)
             strong = is_strong(pred)
             if res.enough_at is None and strong and held_for_s(res.updates) >= cfg.stable_s:
