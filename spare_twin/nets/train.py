@@ -357,17 +357,22 @@ def _open_sources(net: NetConfig, tr: TrainConfig, data_dirs: list[Path], out_di
     return train_src, val_ds
 
 
-def _observe_sources(net: NetConfig, train_src, val_ds, group: Group) -> None:
+def _observe_sources(net: NetConfig, train_src, val_ds, group: Group):
     """Rank 0 observes (or reads back) the samples of a network that observes its own, into the run
-    folder; then every other rank reads them from there."""
+    folder; then every other rank reads them from there. Returns the validation samples, None where
+    the data holds no validation split (select on the training loss then)."""
     if not architecture(net).observed_samples:
-        return
+        return val_ds
     if group.is_main:
-        for src in (train_src, val_ds):
-            if src is not None:
-                src.prepare()
+        train_src.prepare()
+        try:
+            if val_ds is not None:
+                val_ds.prepare()
+        except SpareTwinError:
+            val_ds = None
     group.barrier()
     train_src.prepare()
+    return val_ds
 
 
 #: The share of a one-cycle run spent raising the learning rate.
@@ -394,7 +399,7 @@ def _train(preset, data_dirs, out_dir: Path, dev, group: Group, on_the_fly, resu
     data_dir = data_dirs[0] if len(data_dirs) == 1 else None
     train_src, val_ds = _open_sources(net, tr, data_dirs, out_dir, main, progress)
     state = _start(data_dirs, out_dir, resume, group)
-    _observe_sources(net, train_src, val_ds, group)
+    val_ds = _observe_sources(net, train_src, val_ds, group)
 
     torch.manual_seed(tr.seed)
     np.random.seed(tr.seed)
