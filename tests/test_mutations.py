@@ -384,10 +384,10 @@ def test_a_pose_file_whose_header_is_zeroed(sources, tmp_path):
     assert tree(rec) == before
 
 
-#: Found by a 600-example search: checkpoint `net` fields that the checkpoint reader accepts and the
-#: network then trips over ("internal error, IndexError" / an OpenCV resize error / "cannot convert
-#: float NaN to integer"). Checking a checkpoint's structure is the validators' work (nets/checkpoint.py).
-NET_FIELDS_UNCHECKED = [
+#: Found by a 600-example search: checkpoint `net` fields that the checkpoint reader once accepted and the
+#: network then tripped over ("internal error, IndexError" / an OpenCV resize error / "cannot convert
+#: float NaN to integer"); NetConfig now bounds every field, and these are refused in one line.
+NET_FIELDS_OUT_OF_RANGE = [
     ("channels", ""),
     ("channels", []),
     ("height", math.nan),
@@ -396,8 +396,9 @@ NET_FIELDS_UNCHECKED = [
 ]
 
 
-@pytest.mark.xfail(strict=False, reason="net fields not validated yet in nets/checkpoint.py (issue 31)")
-@pytest.mark.parametrize("field, value", NET_FIELDS_UNCHECKED, ids=[f"{f}={v!r}" for f, v in NET_FIELDS_UNCHECKED])
+@pytest.mark.parametrize(
+    "field, value", NET_FIELDS_OUT_OF_RANGE, ids=[f"{f}={v!r}" for f, v in NET_FIELDS_OUT_OF_RANGE]
+)
 def test_checkpoint_net_fields_out_of_range(field, value, sources, tmp_path):
     import torch
 

@@ -112,6 +112,10 @@ def load_model(path: str | Path, device="cpu"):
     ck = load(path, device)
     try:
         net = net_from_dict(ck["net"], f"{path}: net")
+    except SpareTwinError as exc:  # a field out of its range ("net.height: nan ...")
+        message = str(exc)
+        raise SpareTwinError(message if message.startswith(str(path)) else f"{path}: {message}") from None
+    try:
         model = build_model(net)
     except (TypeError, ValueError, AttributeError, KeyError) as exc:  # a net entry no architecture fits
         raise SpareTwinError(f"{path}: net: not a network configuration ({type(exc).__name__}: {exc})") from None

@@ -108,8 +108,48 @@ class NetConfig:
             raise SpareTwinError(
                 "net.mode: the profile network reads the chain's profile (mode profile), and only it does"
             )
-        if self.frames < 1 or self.height < 16 or self.width < 16:
-            raise SpareTwinError("net.frames/height/width: too small")
+        for name, (lo, hi) in _NET_INT_BOUNDS.items():
+            _check_whole(f"net.{name}", getattr(self, name), lo, hi)
+        if not isinstance(self.channels, tuple) or not 1 <= len(self.channels) <= 8:
+            raise SpareTwinError(f"net.channels: {self.channels!r} must list 1..8 block widths")
+        for c in self.channels:
+            _check_whole("net.channels", c, 1, 1024)
+        if not _finite_number(self.dropout) or not 0.0 <= self.dropout < 1.0:
+            raise SpareTwinError(f"net.dropout: {self.dropout!r} must be a number in [0, 1)")
+        if not _finite_number(self.e2e_slot_threshold) or self.e2e_slot_threshold < 0:
+            raise SpareTwinError(f"net.e2e_slot_threshold: {self.e2e_slot_threshold!r} must be a number, 0 or more")
+        cells = self.grid.cells
+        if not isinstance(cells, tuple) or len(cells) != 3:
+            raise SpareTwinError(f"net.grid.cells: {cells!r} must be three voxel counts")
+        for c in cells:
+            _check_whole("net.grid.cells", c, 4, 256)
+        _check_whole("net.grid.time_bins", self.grid.time_bins, 1, 1000)
+        for name in ("x_range", "y_range", "z_range"):
+            r = getattr(self.grid, name)
+            if not (isinstance(r, tuple) and len(r) == 2 and all(_finite_number(v) for v in r) and r[0] < r[1]):
+                raise SpareTwinError(f"net.grid.{name}: {r!r} must be two finite numbers, low < high")
+
+
+#: Whole-number fields of a network configuration and their bounds: a checkpoint or configuration file
+#: outside them would build no network, or one too large for any machine (checked before torch sees them).
+_NET_INT_BOUNDS = {
+    "frames": (1, 1000),
+    "height": (16, 4096),
+    "width": (16, 4096),
+    "fc_hidden": (1, 65536),
+    "lstm_hidden": (1, 65536),
+    "frame_features": (1, 65536),
+    "lift_features": (1, 1024),
+}
+
+
+def _finite_number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _check_whole(name: str, v, lo: int, hi: int) -> None:
+    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+        raise SpareTwinError(f"{name}: {v!r} must be a whole number in {lo}..{hi}")
 
 
 @dataclass(frozen=True)
