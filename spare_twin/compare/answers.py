@@ -61,10 +61,12 @@ def resolve_models(names: Sequence[str] | None, frames_lo: int, models_dir: Path
     """The networks to score alone: `names` (shipped names in models/index.json, or checkpoint files),
     or by default every shipped model that can read the captures (those reading posed views or a
     sweep, and temporal ones whose trained frame count the shortest capture has)."""
-    shipped = ckpt.read_index(models_dir).get("models", {})
+    index = ckpt.read_index(models_dir)
+    shipped = index.get("models", {})
     if names is None:
         chosen = []
-        for name, entry in sorted(shipped.items()):
+        first = index.get("defaults", {}).get("predict")  # predict's own network leads
+        for name, entry in sorted(shipped.items(), key=lambda item: (item[0] != first, item[0])):
             path = Path(models_dir) / entry.get("file", f"{name}.pt")
             if entry.get("mode") in _READS_A_SWEEP or ckpt.load_model(path)[1].frames <= frames_lo:
                 chosen.append(model_of(name, path))
