@@ -27,6 +27,8 @@ from spare_twin.predict.combine import overrule
 
 #: Which estimate the top-level `count_accuracy` and `E_L` are: the network's own.
 HEADLINE = "network"
+#: The prefix of the combined answer's figures where a shipped checkpoint records them.
+WITH_MEASUREMENT = "with_measurement_"
 #: Why there is no combined figure for a model that has no measurement beside it.
 NO_MEASUREMENT = "no measurement beside this network: predict answers with the network alone"
 
@@ -76,13 +78,14 @@ def combined_evaluation(network: Evaluation) -> Evaluation | None:
 
 
 def recorded(result: SourcesEvaluation) -> dict:
-    """What a shipped checkpoint records (its card and models/index.json show it in this order): the
-    network's own figures first, the combined answer's beside them as `combined_*`."""
+    """What a shipped checkpoint records: the network's own figures under the plain names, the combined
+    answer's beside them as `with_measurement_*` (after them in the card's order and in
+    models/index.json's sorted keys alike)."""
     out = recorded_metrics(result.network)
     if result.combined is not None:
         combined = recorded_metrics(result.combined)
         tail = {k: out.pop(k) for k in ("instances", "split", "data")}
-        out.update({f"combined_{k}": combined[k] for k in RECORDED if combined[k] is not None})
+        out.update({f"{WITH_MEASUREMENT}{k}": combined[k] for k in RECORDED if combined[k] is not None})
         out.update(tail)
     return out
 
