@@ -372,3 +372,26 @@ def test_compare_batch_reports_each_answer_alone(tmp_path, monkeypatch):
     md = (tmp_path / "t" / "sim2real.md").read_text()
     assert "Each answer alone" in md and "| 2 | grey-tmp-multitask | refused |" in md
     assert "| count acc. sim, real cameras |" in md and "| 2 | measurement |" in md
+
+
+@pytest.mark.parametrize(
+    "text, on",
+    [("all", list(EFFECTS)), ("none", []), ("shadows,joint_play", ["joint_play", "shadows"]), ("FILE", ["hand"])],
+)
+def test_effects_flag_reaches_the_bench(text, on, tmp_path, capsys, monkeypatch):
+    """--effects all|none|A,B|FILE.json: the switches (and a file's ranges) the bench captures with."""
+    seen = {}
+
+    def fake_bench(out, cfg, models, workers, force=False):
+        seen["cfg"] = cfg
+        return {"rows": []}, {}
+
+    monkeypatch.setattr(sim2real, "bench_sim2real", fake_bench)
+    if text == "FILE":
+        text = str(tmp_path / "fx.json")
+        (tmp_path / "fx.json").write_text(json.dumps({**{e: False for e in EFFECTS}, "hand": True, "roll_deg": 3.0}))
+    code, _, err = run_cli(["bench", "sim2real", "--out", str(tmp_path / "b"), "--effects", text, "--json"], capsys)
+    assert code == 0, err
+    assert list(seen["cfg"].effects.on) == on
+    if text.endswith(".json"):
+        assert seen["cfg"].effects.roll_deg == 3.0
