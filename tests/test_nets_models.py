@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 import torch
 
-from spare_twin.nets.models import build_model, decode, slots_to_count
+from spare_twin.nets.models import slots_to_count
 from spare_twin.nets.presets import PRESETS, resolve
+from spare_twin.nets.registry import build_model, decode
 
 ROOT = Path(__file__).parents[1]
 

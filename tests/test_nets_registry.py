@@ -54,15 +54,6 @@ def test_every_preset_resolves_through_the_registry(name):
     assert ("angles_sincos" in out) == (arch.reads == "profile" and net.predict_angles)
 
 
-def test_the_models_module_still_offers_build_model_and_decode():
-    """The checkpoint loader and predict import them from nets.models: they are the registry's."""
-    from spare_twin.nets import models
-
-    assert models.build_model is registry.build_model and models.decode is registry.decode
-    with pytest.raises(AttributeError):
-        models.no_such_name  # noqa: B018
-
-
 def test_an_unknown_architecture_is_a_one_line_error():
     from spare_twin.errors import SpareTwinError
 

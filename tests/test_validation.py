@@ -240,8 +240,8 @@ def test_json_reader_bounds():
 def tiny_checkpoint(tmp_path_factory):
     """A small, untrained but well-formed count network checkpoint."""
     from spare_twin.nets import checkpoint as ckpt
-    from spare_twin.nets.models import build_model
     from spare_twin.nets.presets import resolve
+    from spare_twin.nets.registry import build_model
 
     preset = resolve("conv3d-depth-mv-count", {"net": {"channels": [4, 8], "fc_hidden": 16}})
     model = build_model(preset.net)

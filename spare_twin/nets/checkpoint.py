@@ -25,8 +25,9 @@ import torch
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
-from spare_twin.nets.models import build_model, input_norms
+from spare_twin.nets.models import input_norms
 from spare_twin.nets.presets import net_from_dict
+from spare_twin.nets.registry import build_model
 
 FORMAT = "spare-twin-net"
 VERSION = 1

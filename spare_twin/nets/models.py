@@ -312,14 +312,3 @@ def _decode(cfg: NetConfig, out: dict, true_n, known_lengths) -> dict:
     if "angles" in out:
         res["angles"] = out["angles"]
     return res
-
-
-def __getattr__(name: str):
-    """`build_model` and `decode` are the registry's (`spare_twin.nets.registry`), importable from
-    here too (the checkpoint loader and predict do). Looked up on first use: the registry imports
-    this module's networks, so this module cannot import it at the top."""
-    if name in ("build_model", "decode"):
-        from spare_twin.nets import registry
-
-        return getattr(registry, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -20,8 +20,9 @@ import numpy as np
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.measure.chain import measure_views
-from spare_twin.nets.models import decode, model_inputs
+from spare_twin.nets.models import model_inputs
 from spare_twin.nets.presets import NetConfig
+from spare_twin.nets.registry import decode
 from spare_twin.observe.network_input import InputSpec, NetworkInput, observe_recording
 from spare_twin.observe.views import recording_views
 from spare_twin.predict.abstain import MIN_ARC_DEG, measurement_estimate, network_estimate

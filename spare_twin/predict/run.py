@@ -21,7 +21,7 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.measure.chain import measure_views
 from spare_twin.measure.layers import LayerMeasurement
 from spare_twin.nets import checkpoint as ckpt
-from spare_twin.nets.models import decode
+from spare_twin.nets.registry import decode
 from spare_twin.observe.chain import ChainObservation
 from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
 from spare_twin.observe.views import PosedViews, recording_views
