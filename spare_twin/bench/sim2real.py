@@ -37,6 +37,7 @@ from spare_twin.bench.capture import SIDES
 from spare_twin.bench.scoring import COMBINED, bench_markdown, bench_table, write_png
 from spare_twin.bench.settings import BenchConfig, CaptureSettings, capture_settings
 from spare_twin.compare.answers import Model, answers_of, model_of, resolve_models, score_answers
+from spare_twin.dataset.backends import start_pool
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
@@ -148,8 +149,6 @@ def _run_all(jobs: list[tuple], workers: int, progress: bool) -> list[dict]:
     if workers == 1 or len(jobs) <= 1:
         with _one_torch_thread():
             return [run_object(*j) for j in tqdm(jobs, **bar)]
-    from spare_twin.dataset.backends import start_pool
-
     with start_pool(min(workers, len(jobs)), _init_worker) as pool:  # quiet on Ctrl-C: the driver answers it
         return list(tqdm(pool.imap(_job, jobs), **bar))
 
