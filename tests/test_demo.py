@@ -31,7 +31,7 @@ def test_demo_runs_end_to_end(tmp_path):
         "/real/network_input",
         "/sim/network_input",
         "/world/real_cloud",
-        "/world/twin/link3",
+        "/twin_sim/demo_chain/visual_geometries/link3",  # the twin's URDF, posed per frame
         "/real/frame/depth",
     ):
         assert entity in printed, entity

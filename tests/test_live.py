@@ -231,3 +231,34 @@ def test_an_output_that_is_not_a_live_recording_is_refused(sweep, tmp_path, caps
     _one_line_error(code, err, "mine")
     assert (out / "notes.txt").read_text() == "mine"
     assert os.listdir(out) == ["notes.txt"]
+
+
+def test_compare_rrd_poses_the_urdf_twins_per_frame(printed_object, tmp_path):
+    """compare's .rrd: the printed twin through Rerun's URDF support, sim posed per frame by the simulated
+    angles, real by predict's, their difference a time series; no meshes posed by hand."""
+    from spare_twin.compare.rerun_log import ComparisonLog, log_comparison
+    from spare_twin.recording import Camera, Recording, RecordingWriter
+
+    K = np.array([[100.0, 0, 31.5], [0, 100.0, 23.5], [0, 0, 1]])
+    recs = []
+    for name in ("real", "sim"):
+        with RecordingWriter(tmp_path / name, [Camera("cam0", 64, 48, K, np.eye(4))], 3, 10.0, {"kind": "sim"}) as w:
+            for f in range(3):
+                w.add_frame("cam0", f, np.full((48, 64, 3), 100, np.uint8), np.full((48, 64), 0.5, np.float32))
+            w.set_ground_truth(joint_angles_rad=np.array([[0.1, 0.2], [0.2, 0.3], [0.3, 0.4]]))
+        recs.append(Recording.open(tmp_path / name))
+    side = {"n_links": 2, "link_lengths_pu": [1.5, 0.8, 0.7]}
+    result = {"truth": side, "sim": side, "real": {**side, "joint_angles_rad": [0.25, 0.25]}, "errors": {}}
+    rrd = tmp_path / "cmp.rrd"
+    views = np.ones((8, 96, 128))
+    log = ComparisonLog(result, np.zeros((5, 3)), np.full((5, 3), 0.5), [], views, views, recs[0], recs[1],
+                        urdf_path=printed_object.urdf_path)  # fmt: skip
+    log_comparison(rrd, log)
+    rerun = Path(sys.executable).with_name("rerun")
+    assert subprocess.run([str(rerun), "rrd", "verify", str(rrd)], capture_output=True).returncode == 0
+    text = subprocess.run([str(rerun), "rrd", "print", str(rrd)], capture_output=True, text=True).stdout
+    robot = printed_object.urdf_path.stem
+    for entity in (f"/twin_sim/{robot}/visual_geometries/link2", f"/twin_real/{robot}/visual_geometries/link2",
+                   "/twin_sim/joints/joint1", "/twin_real/joints/joint2", "/angle_error_deg/joint2"):  # fmt: skip
+        assert entity in text, entity
+    assert "/world/twin/link0" not in text

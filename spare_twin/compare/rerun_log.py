@@ -3,7 +3,10 @@
 Entity layout::
 
     world/real_cloud                    the fused real object cloud, in the twin's base frame
-    world/twin/link<k>                  the posed twin's meshes (the printed STLs), link colours
+    twin_sim/<robot>, twin_real/<robot>  the printed twin's URDF through Rerun's URDF support, posed per frame
+                                        by the simulated and by predict's joint angles (`compare.rerun_urdf`);
+                                        angle_error_deg/joint<k> their difference (without a URDF: the posed
+                                        meshes at world/twin/link<k>)
     real/frame/color, real/frame/depth  the real recording, frame by frame (timeline `frame`)
     sim/frame/color, sim/frame/depth    the twin rendered through the same cameras
     real/network_input, sim/network_input   the depth views each network saw, tiled (metres); real is
@@ -26,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.compare.rerun_urdf import TWIN_CONTENTS, log_twins
 from spare_twin.output import RRD, writing
 from spare_twin.recording import Recording
 
@@ -47,6 +51,9 @@ class ComparisonLog:
     sim_rec: Recording
     real_twin_aligned_input: np.ndarray | None = None
     """(V, H, W) depth the network saw for the diagnostic (real cameras aligned on the fitted twin)."""
+    urdf_path: Path | None = None
+    """The printed object's URDF: the twins are logged through Rerun's URDF support (`compare.rerun_urdf`)
+    and `twin_meshes` is not used."""
 
 
 def tile(views: np.ndarray, columns: int = 4) -> np.ndarray:
@@ -135,7 +142,9 @@ def _blueprint():
         rrb.Vertical(
             rrb.Horizontal(
                 frames("real"),
-                rrb.Spatial3DView(origin="world", name="real cloud + posed twin"),
+                rrb.Spatial3DView(
+                    origin="world", contents=["$origin/**", *TWIN_CONTENTS], name="real cloud + posed twin"
+                ),
                 frames("sim"),
                 column_shares=[1, 2, 1],
             ),
@@ -147,7 +156,10 @@ def _blueprint():
                     ),
                 ),
                 rrb.Spatial2DView(origin="sim/network_input", name="sim: network input (depth)"),
-                rrb.BarChartView(origin="lengths", name="link lengths: truth, sim, real, diagnostic"),
+                rrb.Tabs(
+                    rrb.BarChartView(origin="lengths", name="link lengths: truth, sim, real, diagnostic"),
+                    rrb.TimeSeriesView(origin="angle_error_deg", name="joint angles: real - sim (deg)"),
+                ),
                 rrb.TextDocumentView(origin="summary", name="truth vs sim vs real (predict alone)"),
             ),
             row_shares=[3, 2],
@@ -176,7 +188,7 @@ def _log(tmp: Path, log: ComparisonLog, every: int) -> None:
         rr.Points3D(log.real_cloud, colors=(np.clip(log.real_cloud_rgb, 0, 1) * 255).astype(np.uint8), radii=0.0012),
         static=True,
     )
-    for k, (vertices, triangles, rgb) in enumerate(log.twin_meshes):
+    for k, (vertices, triangles, rgb) in enumerate(log.twin_meshes if log.urdf_path is None else ()):
         stream.log(
             f"world/twin/link{k}",
             rr.Mesh3D(vertex_positions=vertices, triangle_indices=triangles, albedo_factor=[*rgb, 0.55]),
@@ -209,5 +221,7 @@ def _log(tmp: Path, log: ComparisonLog, every: int) -> None:
         for side, rec, cam in (("real", log.real_rec, real_cam), ("sim", log.sim_rec, sim_cam)):
             stream.log(f"{side}/frame/color", rr.Image(rec.color(cam, f)))
             stream.log(f"{side}/frame/depth", rr.DepthImage(rec.depth_m(cam, f), meter=1.0))
+    if log.urdf_path is not None:
+        log_twins(stream, log.urdf_path, log.sim_rec, log.result, range(0, n, every))
     stream.flush()
     stream.disconnect()

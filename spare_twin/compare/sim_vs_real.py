@@ -27,15 +27,14 @@ from tqdm import tqdm
 
 from spare_twin import __version__
 from spare_twin.capture.pipeline import fuse_recording, register_recording
-from spare_twin.compare.articulated import ArticulatedFit, FitConfig, fit_articulated, twin_link_meshes
+from spare_twin.compare.articulated import ArticulatedFit, FitConfig, fit_articulated
 from spare_twin.compare.depth_fit import DepthScorer, DepthView, transformed
 from spare_twin.compare.rerun_log import ComparisonLog, log_comparison
 from spare_twin.compare.result import Comparison, Truth
-from spare_twin.config import COLORS
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.object.folder import ObjectFolder, load_object
-from spare_twin.object.kinematics import forward_kinematics, link_lengths_m
+from spare_twin.object.kinematics import link_lengths_m
 from spare_twin.output import RRD, check_output
 from spare_twin.predict.run import predict_recording
 from spare_twin.recording import Camera, Recording, RecordingWriter
@@ -305,25 +304,19 @@ def _write_rrd(
     # Everything in the twin's base frame: the cloud moves by the fitted base pose.
     T_base_object = np.linalg.inv(fit.T_object_base)
     cloud = cloud_obj @ T_base_object[:3, :3].T + T_base_object[:3, 3]
-    poses = forward_kinematics(obj.spec, fit.joint_angles_rad)
-    meshes = []
-    for k, mesh in enumerate(twin_link_meshes(obj)):
-        mesh.apply_transform(poses[k])
-        meshes.append(
-            (np.asarray(mesh.vertices, np.float32), np.asarray(mesh.faces, np.uint32), COLORS[obj.spec.colors[k]])
-        )
     log_comparison(
         rrd,
         ComparisonLog(
             result=result.to_json(),
             real_cloud=cloud,
             real_cloud_rgb=colors,
-            twin_meshes=meshes,
+            twin_meshes=[],  # the twin is the object's URDF, through Rerun's URDF support
             real_input=result.real.network_input,
             sim_input=result.sim.network_input,
             real_twin_aligned_input=result.real_twin_aligned.network_input,
             real_rec=real,
             sim_rec=sim,
+            urdf_path=obj.urdf_path,
         ),
         every=cfg.rrd_every,
         inputs=inputs,
