@@ -20,6 +20,7 @@ import numpy as np
 from spare_twin.errors import SpareTwinError
 from spare_twin.live.track import PlacedFrame
 from spare_twin.measure.chain import ON_OBJECT_SWEEP
+from spare_twin.nets import checkpoint as ckpt
 from spare_twin.observe.on_object import register_on_object
 from spare_twin.observe.points import PosedView
 from spare_twin.observe.views import PosedViews
@@ -47,8 +48,6 @@ class Estimator:
 def load_estimator(model_path: str | Path | None, answer: str, print_scale: float) -> Estimator:
     """The network `predict` would load (its default profile network unless `model_path`); only a
     profile network reads posed views in memory, so another one is refused."""
-    from spare_twin.nets import checkpoint as ckpt
-
     check_options(print_scale=print_scale, answer=answer)
     if answer == "measurement":
         if model_path is not None:

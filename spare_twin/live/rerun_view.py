@@ -67,7 +67,7 @@ class LiveView:
     def __init__(self, stream, ctx=None, object_dir: str | Path | None = None):
         import rerun as rr
 
-        self.stream, self._ctx = stream, ctx
+        self.stream, self._viewer_scope = stream, ctx
         self._points: list[np.ndarray] = []
         self._n_points = 0
         self._since_logged = 0
@@ -208,15 +208,15 @@ class LiveView:
         """Flush; an .rrd is put in place whole."""
         self.stream.flush()
         self.stream.disconnect()
-        if self._ctx is not None:
-            self._ctx.__exit__(None, None, None)
-            self._ctx = None
+        if self._viewer_scope is not None:
+            self._viewer_scope.__exit__(None, None, None)
+            self._viewer_scope = None
         self._workdir.cleanup()
 
     def abandon(self) -> None:
         """After an error: an .rrd being written is dropped, what was at its place stays."""
-        if self._ctx is not None:
+        if self._viewer_scope is not None:
             self.stream.disconnect()
             err = SpareTwinError("live stopped")
-            self._ctx.__exit__(SpareTwinError, err, None)
-            self._ctx = None
+            self._viewer_scope.__exit__(SpareTwinError, err, None)
+            self._viewer_scope = None

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.live.estimate import load_estimator
+from spare_twin.live.rerun_view import LiveView
 from spare_twin.live.session import LIVE, LiveConfig, LiveResult, Update, run_live
 from spare_twin.live.sources import open_source
 from spare_twin.output import RRD, check_output
@@ -35,8 +36,6 @@ def live(
 ) -> LiveResult:
     """`spare-twin live`; see `live.session`. The view goes to `rrd` (a file), `connect` (a running
     viewer) or, with `viewer`, a spawned viewer; none without any of them."""
-    from spare_twin.live.rerun_view import LiveView
-
     if rrd is not None and connect is not None:
         raise SpareTwinError("rrd, connect: give one place for the view, not both")
     cfg = LiveConfig(update_s=update_s, stable_s=stable_s, until_stable=until_stable, views=views)
