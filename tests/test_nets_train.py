@@ -176,8 +176,8 @@ def test_force_replaces_a_foreign_run_folder_once_training_is_complete(synthetic
 
 def test_batchnorm_recalibration_touches_only_the_running_statistics(synthetic_data):
     from spare_twin.nets.data import open_split
-    from spare_twin.nets.models import build_model
     from spare_twin.nets.presets import resolve
+    from spare_twin.nets.registry import build_model
     from spare_twin.nets.train import recalibrate_batchnorm
 
     net = resolve("geo-depth-mv-count", {"net": {"channels": [4, 8], "fc_hidden": 16}}).net

@@ -12,8 +12,8 @@ import torch
 from conftest import run_cli
 
 from spare_twin.nets import checkpoint as ckpt
-from spare_twin.nets.models import decode
 from spare_twin.nets.profile_train import observe_split
+from spare_twin.nets.registry import decode
 from spare_twin.predict.combine import overrule
 
 

@@ -6,8 +6,8 @@ import pytest
 import torch
 from conftest import run_cli
 
-from spare_twin.nets.models import build_model
 from spare_twin.nets.presets import get_preset
+from spare_twin.nets.registry import build_model
 from spare_twin.nets.train import to_channels_last
 
 
