@@ -116,6 +116,8 @@ def load_model(path: str | Path, device="cpu"):
     except SpareTwinError as exc:  # a field out of its range ("net.height: nan ...")
         message = str(exc)
         raise SpareTwinError(message if message.startswith(str(path)) else f"{path}: {message}") from None
+    except (TypeError, ValueError, AttributeError, KeyError) as exc:  # a net entry no configuration fits
+        raise SpareTwinError(f"{path}: net: not a network configuration ({type(exc).__name__}: {exc})") from None
     try:
         model = build_model(net)
     except (TypeError, ValueError, AttributeError, KeyError) as exc:  # a net entry no architecture fits
