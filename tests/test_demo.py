@@ -48,6 +48,10 @@ def test_demo_runs_end_to_end(tmp_path):
         assert saved["real"][key] == alone[key], key
     real_row = next(line for line in lines if REAL_LABEL in line)
     assert f"n = {alone['n_links']} " in real_row, (real_row, alone)
+    # every answer says where it came from, and what the network and the measurement said on their own
+    sources = next(line for line in lines if line.strip().startswith("real: from"))
+    assert isinstance(alone["source"], str) and f"from the {alone['source']}" in sources, (sources, alone)
+    assert f"measurement alone n = {alone['measurement']['n_links']}" in sources, sources
     # the diagnostic (cameras re-aligned on the fitted twin) is there, under its own name
     assert saved["real_twin_aligned"]["n_links"] == 3
     assert any(line.strip().startswith(ALIGNED_LABEL) for line in lines)

@@ -75,6 +75,7 @@ class DemoResult:
         reason = c.real.to_json().get("reason")
         if reason:
             lines.append(f"  real: no count ({reason})")
+        lines += [f"  {label}: {_sources(p)}" for label, p in (("sim, training rig", rig), ("real", c.real))]
         predicted = c.predicted_angle_errors_deg("real")
         if predicted is not None:
             errors = ", ".join(f"{a:.1f}" for a in predicted)
@@ -87,6 +88,18 @@ class DemoResult:
             f"  Rerun recording: {self.rrd}  (open with `rerun {self.rrd}`)",
         ]
         return "\n".join(lines)
+
+
+def _sources(p: Prediction) -> str:
+    """Where an answer came from, and what each estimate said on its own (issue 27: every answer
+    says its source)."""
+    src = p.source_json()
+    came = "no answer" if src is None else f"from the {src}" if isinstance(src, str) else "mixed, field by field"
+    own = []
+    for name, est in (("network", p.network), ("measurement", p.measurement)):
+        if est is not None:
+            own.append(f"{name} alone n = {est.n_links if est.n_links is not None else 'none'}")
+    return came + (f" ({', '.join(own)})" if own else "")
 
 
 #: The output kind of the demo's folder (`spare_twin.output`).
