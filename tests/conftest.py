@@ -1,7 +1,9 @@
 """Fixtures shared by the test modules. Session-scoped: the expensive ones (a training run, a
 registered hand-held capture, tiny checkpoints) are made once per test session."""
 
+import hashlib
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -26,6 +28,28 @@ TINY = {
         "threads": 1,
     },
 }
+
+
+def tree(root: Path) -> dict[str, str]:
+    """Every path under root, hidden ones included, links not followed -> a hash of its content ("dir"
+    for a folder, "link:TARGET" for a link): compare two to see what a command added, removed or changed."""
+    out = {}
+    for dirpath, dirnames, filenames in os.walk(root):
+        for name in dirnames + filenames:
+            p = Path(dirpath) / name
+            rel = p.relative_to(root).as_posix()
+            if p.is_symlink():
+                out[rel] = "link:" + os.readlink(p)
+            elif p.is_dir():
+                out[rel] = "dir"
+            else:
+                out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
+    return out
+
+
+def stderr_lines(stderr: str) -> list[str]:
+    """The lines a person sees: a progress bar redraws its line with carriage returns."""
+    return [ln.split("\r")[-1] for ln in stderr.split("\n") if ln.split("\r")[-1].strip()]
 
 
 def run_cli(argv, capsys):

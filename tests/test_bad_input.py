@@ -12,7 +12,6 @@ cases run there too, since C libraries print on file descriptor 1.
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import json
 import os
 import shlex
@@ -27,7 +26,7 @@ from pathlib import Path
 
 import pytest
 from capture_helpers import APC, TUM_K, TUM_PAIR
-from conftest import REPO
+from conftest import REPO, stderr_lines, tree
 
 from spare_twin.cli import main
 
@@ -456,22 +455,6 @@ CASES = [
 # -- running a case --------------------------------------------------------------------------------
 
 
-def tree(root: Path) -> dict[str, str]:
-    """Every path under root -> a hash of its content ("dir" for a folder, the target for a link)."""
-    out = {}
-    for dirpath, dirnames, filenames in os.walk(root):
-        for name in dirnames + filenames:
-            p = Path(dirpath) / name
-            rel = p.relative_to(root).as_posix()
-            if p.is_symlink():
-                out[rel] = "link:" + os.readlink(p)
-            elif p.is_dir():
-                out[rel] = "dir"
-            else:
-                out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
-    return out
-
-
 def tree_changes(before: dict[str, str], after: dict[str, str]) -> list[str]:
     lost = sorted(set(before) - set(after))
     changed = sorted(k for k in set(before) & set(after) if before[k] != after[k])
@@ -500,11 +483,6 @@ def time_budget(seconds: float):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, old)
-
-
-def stderr_lines(stderr: str) -> list[str]:
-    """The lines a person sees: a progress bar redraws its line with carriage returns."""
-    return [ln.split("\r")[-1] for ln in stderr.split("\n") if ln.split("\r")[-1].strip()]
 
 
 def judge(case: Case, code, stderr: str, before: dict, after: dict, crash: str | None) -> list[str]:

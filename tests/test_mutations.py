@@ -15,7 +15,6 @@ failed example, not a dead test session. Examples are derandomised: CI sees the 
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import io
 import json
 import math
@@ -28,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import stderr_lines, tree
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -70,20 +70,6 @@ def sources(printed_object, tiny_models, rig_rec, tmp_path_factory) -> dict[str,
 
 
 # -- running a command, isolated -------------------------------------------------------------------
-
-
-def tree(root: Path) -> dict[str, str]:
-    """Every path under root -> a hash of its content ("dir" for a folder)."""
-    out = {}
-    for p in sorted(root.rglob("*")):
-        rel = p.relative_to(root).as_posix()
-        out[rel] = "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
-    return out
-
-
-def stderr_lines(stderr: str) -> list[str]:
-    """The lines a person sees: a progress bar redraws its line with carriage returns."""
-    return [ln.split("\r")[-1] for ln in stderr.split("\n") if ln.split("\r")[-1].strip()]
 
 
 def _child(argv: list[str], cwd: Path, write_fd: int) -> None:

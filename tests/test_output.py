@@ -12,6 +12,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import tree
 
 from spare_twin import output, terminal
 from spare_twin.errors import SpareTwinError
@@ -19,15 +20,6 @@ from spare_twin.output import MARKER, RRD, OutputKind, OutputRefused, check_outp
 
 PY = sys.executable
 REPO = Path(__file__).resolve().parents[1]
-
-
-def tree(root: Path) -> dict[str, str]:
-    """Every path under root (folders too) -> content hash ("dir" for folders)."""
-    out = {}
-    for p in sorted(root.rglob("*")):
-        rel = p.relative_to(root).as_posix()
-        out[rel] = "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
-    return out
 
 
 def temporaries(parent: Path) -> list[str]:

@@ -6,7 +6,6 @@ leave every folder as it was (nothing written on refusal)."""
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import shutil
@@ -18,27 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from capture_helpers import APC
-from conftest import REPO, run_cli
+from conftest import REPO, run_cli, stderr_lines, tree
 
 from spare_twin.errors import SpareTwinError
 
 SPARE_TWIN = str(REPO / ".venv" / "bin" / "spare-twin")
-
-
-def tree(root: Path) -> dict[str, str]:
-    """Every path under `root` -> a hash of its content ("dir" for a folder)."""
-    out = {}
-    for dirpath, dirnames, filenames in os.walk(root):
-        for name in dirnames + filenames:
-            p = Path(dirpath) / name
-            rel = p.relative_to(root).as_posix()
-            out[rel] = "dir" if p.is_dir() else hashlib.sha256(p.read_bytes()).hexdigest()
-    return out
-
-
-def lines(stderr: str) -> list[str]:
-    """The stderr lines a person sees (a progress bar redraws its line with carriage returns)."""
-    return [ln.split("\r")[-1] for ln in stderr.split("\n") if ln.split("\r")[-1].strip()]
 
 
 def refused(argv: list[str], capsys, root: Path, names: str, *also: str) -> str:
@@ -46,7 +29,7 @@ def refused(argv: list[str], capsys, root: Path, names: str, *also: str) -> str:
     under `root` added, removed or changed. Returns the line."""
     before = tree(root)
     code, _, err = run_cli(argv, capsys)
-    got = lines(err)
+    got = stderr_lines(err)
     assert code == 1, (code, err)
     assert len(got) == 1, got
     assert "Traceback" not in err
@@ -421,7 +404,7 @@ def test_workers_are_capped_at_the_cores_and_the_work(tmp_path, capsys, monkeypa
     argv = ["dataset", "--out", "data", "--instances", "2", "--frames", "1", "--workers", "500"]
     code, out, err = run_cli(argv, capsys)
     assert code == 0, err
-    notes = [ln for ln in lines(err) if ln.startswith("note: ")]
+    notes = [ln for ln in stderr_lines(err) if ln.startswith("note: ")]
     assert pools == [min(2, len(os.sched_getaffinity(0)))]
     assert len(notes) == 1 and notes[0].startswith(f"note: workers 500: using {pools[0]} ("), notes
 
@@ -470,7 +453,7 @@ def test_ctrl_c_stops_the_worker_pool_quietly(tmp_path):
             os.killpg(proc.pid, signal.SIGKILL)
     assert proc.returncode == 130, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
-    said = [ln for ln in lines(err) if not ln.startswith("dataset data:")]  # the progress bar's last state
+    said = [ln for ln in stderr_lines(err) if not ln.startswith("dataset data:")]  # the progress bar's last state
     assert said == ["spare-twin dataset: interrupted"], said
     for pid in workers:
         for _ in range(50):
@@ -524,7 +507,7 @@ def test_a_shard_that_does_not_read_back_is_made_again(tmp_path, capsys, monkeyp
     code, out, err = run_cli(argv, capsys)
     assert code == 0, err
     assert "wrote 2 new sequences" in out and "1 were already there" in out, out
-    notes = [ln for ln in lines(err) if ln.startswith("note: ")]
+    notes = [ln for ln in stderr_lines(err) if ln.startswith("note: ")]
     assert len(notes) == 2 and "seq-000000.h5: does not read back" in notes[0], notes
     assert "seq-000002.h5: does not read back" in notes[1]
     assert {p.name: p.read_bytes() for p in seq.glob("seq-*.h5")} == good
