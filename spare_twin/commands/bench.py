@@ -6,7 +6,7 @@ Stages add their own benchmark as `spare_twin/commands/bench_<name>.py` defining
 `bench dataset`: dataset images/s end to end on the local and the Ray backend against pybullet's raw
 render loop for the same rig and objects, measured in the same run and interleaved, for 1 and 2 workers;
 Ray's cost per task; and the wall time of the `paper` preset (measured with --paper full, else
-extrapolated from the measured rate). spare_twin/dataset/bench.py says how each figure is measured.
+extrapolated from the measured rate). spare_twin/bench/dataset.py says how each figure is measured.
 """
 
 from __future__ import annotations
@@ -71,8 +71,8 @@ def _add_stage_benchmarks(bsub) -> None:
 def bench_dataset(args: argparse.Namespace) -> int:
     import sys
 
+    from spare_twin.bench.dataset import DatasetBench, bench_dataset
     from spare_twin.commands.common import flags
-    from spare_twin.dataset.bench import DatasetBench, bench_dataset
     from spare_twin.errors import SpareTwinError
 
     try:

@@ -37,7 +37,7 @@ def add_bench(bsub) -> None:
 
 
 def bench_capture(args: argparse.Namespace) -> int:
-    from spare_twin.capture.bench import bench_registration
+    from spare_twin.bench.capture_registration import bench_registration
     from spare_twin.capture.frames import quiet_open3d
     from spare_twin.capture.registration import RegistrationConfig
     from spare_twin.commands.common import flags

@@ -29,7 +29,7 @@ def add_bench(sub) -> None:
 
 
 def run(args) -> int:
-    from spare_twin.live.bench import LiveBench, bench_live
+    from spare_twin.bench.live import LiveBench, bench_live
 
     log = (lambda line: print(line, file=sys.stderr)) if args.json else print
     with flags(frames="--frames", resolution="--resolution", fps="--fps", speed="--speed", rec="--rec"):

@@ -27,7 +27,7 @@ def add_bench(sub) -> None:
 
 
 def run(args) -> int:
-    from spare_twin.nets.bench import bench_network
+    from spare_twin.bench.nets import bench_network
 
     try:
         sizes = tuple(int(s) for s in args.batch_sizes.split(",") if s)

@@ -15,7 +15,7 @@ def add_bench(sub) -> None:
 
 
 def run(args) -> int:
-    from spare_twin.object.bench import bench_object
+    from spare_twin.bench.object import bench_object
 
     with flags(repeats="--repeats"):
         res = bench_object(args.repeats).to_json()

@@ -45,7 +45,7 @@ def add_bench(sub) -> None:
 
 
 def parse_settings(text: str):
-    from spare_twin.nets.train_speed import SpeedSetting
+    from spare_twin.bench.training import SpeedSetting
 
     out = []
     for item in text.split(","):
@@ -65,7 +65,7 @@ def parse_settings(text: str):
 def run(args) -> int:
     import torch
 
-    from spare_twin.nets.train_speed import bench_training
+    from spare_twin.bench.training import bench_training
 
     n = torch.get_num_threads()
     settings = parse_settings(args.settings or f"{n}/0,{n}/0/cl,{n}/1,{n}/1/cl")
