@@ -105,10 +105,32 @@ def test_rig_recordings_take_the_no_op_path_and_other_rigs_the_sim_path(printed_
     assert np.median(np.abs(cv.depth_m[0][both] - depth_true[both])) < 0.003
 
 
+def test_image_networks_refuse_captures_outside_their_rig(registered_rec, rig_rec, tiny_models, capsys):
+    """A rig-trained image network reads fixed cameras (another rig's too) and refuses a hand-held capture with
+    one line naming the kind it needs; `--outside-rig` runs it anyway, labelled a diagnostic."""
+    root, _ = registered_rec
+    code, res, err = predict_json(root, tiny_models["geo"], capsys)
+    lines = err.strip().splitlines()
+    assert code != 0 and res is None and len(lines) == 1 and "Traceback" not in err
+    assert "reads several fixed cameras only, as in its training rig 'synthetic-ring8'" in lines[0]
+    assert "this is a hand-held capture (one moving camera)" in lines[0]
+    assert "--outside-rig" in lines[0]
+    code, res, err = predict_json(rig_rec.root, tiny_models["geo"], capsys, "--answer", "network")
+    assert code == 0, err
+    assert "outside_training" not in res["network"] and res["input"] == "posed"  # another rig's fixed cameras
+    code, res, err = predict_json(root, tiny_models["geo"], capsys, "--outside-rig")
+    assert code == 0, err
+    want = "a hand-held capture (one moving camera); trained on the rig 'synthetic-ring8'"
+    assert res["network"]["outside_training"] == want
+    # the profile network reads any capture: the flag does not apply to it
+    code, _, err = run_cli(["predict", str(root), "--outside-rig", "--json"], capsys)
+    assert code != 0 and err.strip().startswith("spare-twin predict: error: --outside-rig: applies to image networks")
+
+
 def test_predict_on_the_simulated_sensor_recording(registered_rec, handheld_rec, tiny_models, capsys):
     root, _ = registered_rec
     for name, method in (("geo", "posed"), ("conv3d", "fused")):
-        code, res, err = predict_json(root, tiny_models[name], capsys)
+        code, res, err = predict_json(root, tiny_models[name], capsys, "--outside-rig")
         assert code == 0, err
         net = res["network"]
         assert len(net["probabilities"]) == 6 and abs(sum(net["probabilities"]) - 1) < 1e-5
@@ -117,7 +139,7 @@ def test_predict_on_the_simulated_sensor_recording(registered_rec, handheld_rec,
         _answers_its_argmax_or_abstains(res)
         assert res["measurement"]["n_links"] == 2  # measured beside it on the same recording
     # unregistered hand-held simulation with known poses: the world is canonical, no yaw search
-    code, res, err = predict_json(handheld_rec, tiny_models["geo"], capsys, "--yaw-hypotheses", "2")
+    code, res, err = predict_json(handheld_rec, tiny_models["geo"], capsys, "--yaw-hypotheses", "2", "--outside-rig")
     assert code == 0, err
     assert res["input"] == "posed" and "yaw_hypotheses_deg" not in res["network"]
 
@@ -139,7 +161,7 @@ def test_predict_on_real_imported_recordings(tiny_models, tmp_path, capsys):
 
     apc = tmp_path / "apc"
     import_folder(APC, "7scenes", apc, ImportOptions(progress=False))
-    code, res, err = predict_json(apc, tiny_models["conv3d"], capsys)
+    code, res, err = predict_json(apc, tiny_models["conv3d"], capsys, "--outside-rig")
     assert code == 0, err
     assert res["n_links"] is None and res["reason"].startswith("no chain") and res["network"] is None
     assert not (apc / "fused.ply").exists()  # predict writes nothing into the recording
@@ -149,7 +171,7 @@ def test_predict_on_real_imported_recordings(tiny_models, tmp_path, capsys):
         capsys,
     )
     assert code == 0, err
-    code, res, err = predict_json(tmp_path / "tum", tiny_models["geo"], capsys)
+    code, res, err = predict_json(tmp_path / "tum", tiny_models["geo"], capsys, "--outside-rig")
     assert code == 0, err
     assert res["n_links"] is None and res["reason"].startswith("no chain in view") and res["network"] is None
 

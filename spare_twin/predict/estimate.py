@@ -8,6 +8,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from spare_twin.config import PartDims
+from spare_twin.predict.parts import TRAINED_PARTS, parts_json, parts_words
+
 #: `predict --json`'s format and version.
 FORMAT = "spare-twin-prediction"
 VERSION = 2
@@ -41,12 +44,22 @@ class NetworkEvidence:
     yaw-free profile network, a recording from the training rig)."""
     yaw_deg: float | None = None
     """The yaw hypothesis whose output was kept."""
+    outside_training: str | None = None
+    """Set where the network was run on a kind of capture it was not trained on (`predict
+    --outside-rig`, a diagnostic): which kind, and what it was trained on."""
+    other_parts: str | None = None
+    """Set where the chain was printed with other parts than the network was trained on (`predict
+    --parts`): what it was trained on (`predict.abstain.note_parts`)."""
 
     def to_json(self) -> dict:
         out: dict = {"probabilities": _list(rounded(self.probabilities))}
         if self.yaw_hypotheses_deg is not None:
             out["yaw_hypotheses_deg"] = list(self.yaw_hypotheses_deg)
             out["yaw_deg"] = self.yaw_deg
+        if self.outside_training is not None:
+            out["outside_training"] = self.outside_training
+        if self.other_parts is not None:
+            out["other_parts"] = self.other_parts
         return out
 
 
@@ -135,6 +148,8 @@ class Prediction:
     T_world_profile: np.ndarray | None = field(default=None, repr=False, compare=False)
     """The chain's profile frame (base on the table, x along the chain's plane, z up) in the
     recording's world, where the chain was observed (for logging)."""
+    parts: PartDims = field(default_factory=PartDims)
+    """The part dimensions the chain was observed and measured with (`predict --parts`)."""
 
     @property
     def n_links(self) -> int | None:
@@ -192,6 +207,7 @@ class Prediction:
         out["recording"] = self.recording
         out["answer"] = self.answer_kind
         out["print_scale"] = self.print_scale
+        out["parts"] = parts_json(self.parts)
         return out
 
     def in_words(self) -> list[str]:
@@ -204,6 +220,8 @@ class Prediction:
         for name, est in (("network", self.network), ("measurement", self.measurement)):
             lines.append(f"{name}: " + ("not run" if est is None else _estimate_words(est, None)))
         lines.append(f"input: {self.input}; model: {self.model or 'none'}")
+        given = "the default parts" if self.parts == TRAINED_PARTS else "the parts given"
+        lines.append(f"parts: {parts_words(self.parts)} ({given})")
         return lines
 
 
@@ -228,6 +246,10 @@ def _estimate_words(e: Estimate, print_scale: float | None) -> str:
     if isinstance(ev, NetworkEvidence) and ev.probabilities is not None:
         k = int(np.argmax(ev.probabilities))
         text += f" (count probability {ev.probabilities[k]:.3f} on {k + 1})"
+    if isinstance(ev, NetworkEvidence) and ev.other_parts is not None:
+        text += f" [{ev.other_parts}]"
+    if isinstance(ev, NetworkEvidence) and ev.outside_training is not None:
+        text += f" [diagnostic, outside its training: {ev.outside_training}]"
     elif isinstance(ev, MeasurementEvidence) and ev.rms_m is not None:
         text += f" (RMS {1000 * ev.rms_m:.1f} mm off the plates; points per layer {list(ev.points_per_layer)})"
     return text
