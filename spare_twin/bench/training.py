@@ -19,9 +19,12 @@ from torch.utils.data import DataLoader, Subset
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets.data import open_split
-from spare_twin.nets.presets import get_preset
+from spare_twin.nets.presets import PRESETS, get_preset
 from spare_twin.nets.registry import build_model
 from spare_twin.nets.train import measure_normalization, to_channels_last, train_step
+
+#: Besides the multi-view presets of the paper's Table 1 (read off the presets), this project's grey network.
+EXTRA_DEFAULT_PRESETS = ("geo-grey-mv-multitask",)
 
 
 @dataclass(frozen=True)
@@ -130,3 +133,16 @@ def bench_training(
     finally:
         torch.set_num_threads(threads_before)
     return out
+
+
+def default_presets() -> tuple[str, ...]:
+    """The multi-view presets of the paper's Table 1 and `EXTRA_DEFAULT_PRESETS`."""
+    table_1_mv = tuple(name for name, p in PRESETS.items() if p.paper_row and p.net.mode == "mv")
+    return table_1_mv + EXTRA_DEFAULT_PRESETS
+
+
+def default_settings() -> list[SpeedSetting]:
+    """The trainer's defaults (torch's thread count, no loader worker) first, then channels-last, a loader
+    worker, and both."""
+    n = torch.get_num_threads()
+    return [SpeedSetting(n, workers, channels_last) for workers in (0, 1) for channels_last in (False, True)]

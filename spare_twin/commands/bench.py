@@ -1,18 +1,56 @@
-"""`spare-twin bench`: performance benchmarks, one subcommand (and one function) each.
+"""`spare-twin bench`: performance benchmarks, one subcommand each; the benchmarks themselves are
+modules of `spare_twin.bench` (its docstring lists them). Here: the flags, and the figures printed."""
 
-Stages add their own benchmark as `spare_twin/commands/bench_<name>.py` defining
-`add_bench(subparsers)`; this command discovers and registers them.
+from __future__ import annotations
 
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from spare_twin.commands.common import flags
+from spare_twin.errors import SpareTwinError
+
+#: The real frames the repository holds (tests/data/apc_shelf_realsense): `bench capture`'s default data.
+DEFAULT_CAPTURE_DATA = Path(__file__).resolve().parents[2] / "tests" / "data"
+
+DATASET_DESCRIPTION = """\
 `bench dataset`: dataset images/s end to end on the local and the Ray backend against pybullet's raw
 render loop for the same rig and objects, measured in the same run and interleaved, for 1 and 2 workers;
 Ray's cost per task; and the wall time of the `paper` preset (measured with --paper full, else
 extrapolated from the measured rate). spare_twin/bench/dataset.py says how each figure is measured.
 """
 
-from __future__ import annotations
+CAPTURE_DESCRIPTION = "registration accuracy and time on the APC shelf frames; import and fusion frames/s."
 
-import argparse
-import json
+LIVE_DESCRIPTION = (
+    "Render a 640x480, 30 fps simulated hand-held sweep (or take --rec), replay it through `live` in real "
+    "time and print: seconds from the first frame to the first estimate, the interval between updates, frames "
+    "received / placed / dropped, peak RSS, and the last update against the final answer (predict on the "
+    "recording live wrote) and the truth."
+)
+
+SIM2REAL_DESCRIPTION = """\
+Draws OBJECTS chains (object i: n = i % 6 + 1 moving links, seed SEED + i; the default range, 30000 up,
+is held out: docs/sim2real.md names every range used), builds each printable object and captures it
+with the simulated hand-held sensor with every effect of a real print and sensor on (joint play,
+print error, shadows, flying pixels, dark plastic, principal point, the hand, tracker pose error,
+clutter: --effects), renderers alternating (pybullet, open3d's ray caster), sensors spread over the
+objects (SR300, Kinect v1, D435 at 848 x 480), poses tracked for half and hidden for the other half;
+written out as a 7-Scenes folder and imported as a real capture is.
+Rows: predict's combined answer, the measurement alone and each network alone (--models); columns:
+the twin in the training rig, the nominal twin along the capture's own cameras, and the capture
+(real); count accuracy, wrong answers and no answers apart, E_L (7 slots, paper units), joint-angle
+error (objects counted right), overall and per n. A network that cannot read the captures is shown
+as refused. Interrupted runs resume: finished objects (same settings, same models by content) are kept.
+"""
+
+TRAINING_DESCRIPTION = (
+    "`spare-twin bench training`: training samples/s per preset under several speed settings, measured back "
+    "to back in the same run, as ratios against the trainer's defaults (the first setting)."
+)
+
+DEFAULT_SENSORS = "realsense_sr300:640x480,kinect_v1:640x480,realsense_d435:848x480"
 
 
 def register(sub) -> None:
@@ -23,10 +61,33 @@ def register(sub) -> None:
     )
     bsub = p.add_subparsers(dest="benchmark", metavar="BENCHMARK")
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
+    for add in (_add_dataset, _add_capture, _add_live, _add_nets, _add_object, _add_sim2real, _add_training):
+        add(bsub)
+
+
+def _json_flag(p) -> None:
+    p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def _log(args: argparse.Namespace):
+    """Progress lines: on stderr when stdout holds the JSON, else on stdout."""
+    return (lambda line: print(line, file=sys.stderr)) if args.json else print
+
+
+def _integers(text: str, flag: str, example: str, blanks_ok: bool = False) -> tuple[int, ...]:
+    """ "1,16" -> (1, 16); with blanks_ok, empty items are skipped ("" is no integers)."""
+    try:
+        return tuple(int(v) for v in text.split(",") if not blanks_ok or v.strip())
+    except ValueError:
+        raise SpareTwinError(f"{flag} {text!r}: expected comma-separated integers like {example}") from None
+
+
+# -- bench dataset ---------------------------------------------------------------------------------
+def _add_dataset(bsub) -> None:
     d = bsub.add_parser(
         "dataset",
         help="dataset generation: end-to-end images/s vs the raw pybullet render loop",
-        description=__doc__.split("\n\n", 1)[1],
+        description=DATASET_DESCRIPTION,
     )
     d.add_argument("--instances", type=int, default=4, help="sequences per worker in every measured run (default: 4)")
     d.add_argument("--workers", default="1,2", help="worker counts to measure, comma-separated (default: 1,2)")
@@ -49,41 +110,349 @@ def register(sub) -> None:
         help="full: generate the whole paper preset (324 sequences) with the largest worker count and "
         "time it; extrapolate (default): predict its wall time from the measured rate",
     )
-    d.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    _json_flag(d)
     d.set_defaults(func=bench_dataset)
-    _add_stage_benchmarks(bsub)
-
-
-def _add_stage_benchmarks(bsub) -> None:
-    """Other stages add theirs as `spare_twin/commands/bench_<name>.py` with `add_bench(subparsers)`."""
-    import importlib
-    import pkgutil
-
-    import spare_twin.commands as commands
-
-    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
-        if info.name.startswith("bench_"):
-            module = importlib.import_module(f"spare_twin.commands.{info.name}")
-            if hasattr(module, "add_bench"):
-                module.add_bench(bsub)
 
 
 def bench_dataset(args: argparse.Namespace) -> int:
-    import sys
-
     from spare_twin.bench.dataset import DatasetBench, bench_dataset
-    from spare_twin.commands.common import flags
-    from spare_twin.errors import SpareTwinError
 
-    try:
-        worker_counts = tuple(int(w) for w in args.workers.split(","))
-    except ValueError:
-        raise SpareTwinError(f"--workers {args.workers!r}: expected comma-separated integers") from None
+    worker_counts = _integers(args.workers, "--workers", "1,2")
     with flags(instances="--instances", workers="--workers", frames="--frames", rounds="--rounds", paper="--paper"):
         b = DatasetBench(
             args.instances, worker_counts, args.frames, args.geometry, args.rounds, not args.no_ray, args.paper
         )
-        result = bench_dataset(b, log=(lambda line: print(line, file=sys.stderr)) if args.json else print)
+        result = bench_dataset(b, log=_log(args))
     if args.json:
         print(json.dumps(result.to_json()))
+    return 0
+
+
+# -- bench capture ---------------------------------------------------------------------------------
+def _add_capture(bsub) -> None:
+    p = bsub.add_parser(
+        "capture",
+        help="capture: registration accuracy/time on real RealSense frames, import and fusion frames/s",
+        description=CAPTURE_DESCRIPTION,
+    )
+    p.add_argument(
+        "--data",
+        default=None,
+        help="folder holding apc_shelf_realsense/ (default: the repository's tests/data)",
+    )
+    p.add_argument("--gaps", default="1,10,40", help="frame gaps to report, comma-separated (default 1,10,40)")
+    p.add_argument("--max-frames", type=int, default=None, help="use only the first N frames (quick runs)")
+    p.add_argument("--loop-gaps", default="2", help="registration loop-edge gaps (default 2, the library's)")
+    p.add_argument("--voxel", type=float, default=0.004, help="ICP voxel size, metres (default 0.004)")
+    _json_flag(p)
+    p.set_defaults(func=bench_capture)
+
+
+def bench_capture(args: argparse.Namespace) -> int:
+    from spare_twin.bench.capture_registration import bench_registration
+    from spare_twin.capture.frames import quiet_open3d
+    from spare_twin.capture.registration import RegistrationConfig
+
+    quiet_open3d()
+    gaps = _integers(args.gaps, "--gaps", "1,10,40")
+    loops = _integers(args.loop_gaps, "--loop-gaps", "2", blanks_ok=True)  # "": no loop edges
+    with flags(
+        data_dir="--data", gaps="--gaps", voxel_m="--voxel", loop_gaps_frames="--loop-gaps", max_frames="--max-frames"
+    ):
+        r = bench_registration(
+            args.data or DEFAULT_CAPTURE_DATA,
+            gaps,
+            RegistrationConfig(voxel_m=args.voxel, loop_gaps_frames=loops),
+            max_frames=args.max_frames,
+            progress=not args.json or sys.stderr.isatty(),
+        )
+    if args.json:
+        print(json.dumps(r))
+        return 0
+    print(f"APC shelf, {r['frames']} frames, reference poses withheld")
+    for g, row in r["errors"].items():
+        rd, tm = row["rotation_deg"], row["translation_mm"]
+        print(
+            f"  gap {g:>3}: rotation mean {rd['mean']:.2f} max {rd['max']:.2f} deg | translation mean {tm['mean']:.1f} "
+            f"max {tm['max']:.1f} mm ({row['pairs']} pairs){'' if row['within_goal'] else '  OVER GOAL'}"
+        )
+    met = "met" if r["goal"]["met"] else "NOT met"
+    print(
+        f"  import {r['import_frames_per_s']:.1f} frames/s, registration {r['registration_s']:.1f} s, "
+        f"fusion {r['fusion_frames_per_s']:.1f} frames/s; goal (2 deg, 20 mm) {met}"
+    )
+    return 0
+
+
+# -- bench live ------------------------------------------------------------------------------------
+def _add_live(bsub) -> None:
+    p = bsub.add_parser(
+        "live",
+        help="live's latency and memory on a 640x480 30 fps sweep replayed in real time",
+        description=LIVE_DESCRIPTION,
+    )
+    p.add_argument("--frames", type=int, default=300, help="frames of the rendered sweep (default: 300, 10 s)")
+    p.add_argument("--resolution", default="640x480", help="WxH of the rendered sweep (default: 640x480)")
+    p.add_argument("--fps", type=float, default=30.0, help="frame rate of the rendered sweep (default: 30)")
+    p.add_argument("--speed", type=float, default=1.0, help="replay speed (default: 1, real time)")
+    p.add_argument("--rec", metavar="REC_DIR", help="replay this recording instead of rendering one")
+    p.add_argument("--rrd", metavar="OUT.rrd", help="also save the live view (replaces OUT.rrd)")
+    p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    p.set_defaults(func=bench_live)
+
+
+def bench_live(args: argparse.Namespace) -> int:
+    from spare_twin.bench.live import LiveBench, bench_live
+
+    with flags(frames="--frames", resolution="--resolution", fps="--fps", speed="--speed", rec="--rec"):
+        cfg = LiveBench(args.frames, args.resolution, args.fps, args.speed, args.rec, args.rrd)
+        fig = bench_live(cfg, _log(args)).to_json()
+    _print_figures(args, fig)
+    return 0
+
+
+def _print_figures(args: argparse.Namespace, fig: dict) -> None:
+    if args.json:
+        print(json.dumps(fig))
+        return
+    for key, value in fig.items():
+        print(f"  {key}: {value}")
+
+
+# -- bench nets ------------------------------------------------------------------------------------
+def _add_nets(bsub) -> None:
+    p = bsub.add_parser("nets", help="network inference speed: samples/s and latency per sample")
+    src = p.add_mutually_exclusive_group()
+    src.add_argument("--model", metavar="CKPT", help="a checkpoint (default: the shipped predict model)")
+    src.add_argument(
+        "--preset", metavar="NAME", help="an untrained network of this preset (speed does not depend on weights)"
+    )
+    p.add_argument("--batch-sizes", default="1,16", help="comma-separated (default 1,16)")
+    p.add_argument("--iters", type=int, default=10)
+    p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
+    _json_flag(p)
+    p.set_defaults(func=bench_nets)
+
+
+def bench_nets(args: argparse.Namespace) -> int:
+    from spare_twin.bench.nets import bench_network
+
+    sizes = _integers(args.batch_sizes, "--batch-sizes", "1,16", blanks_ok=True)
+    with flags(
+        model="--model",
+        preset="--preset",
+        batch_sizes="--batch-sizes",
+        iters="--iters",
+        threads="--threads",
+        device="--device",
+    ):
+        res = bench_network(args.model, args.preset, sizes, args.iters, args.threads, args.device).to_json()
+    if args.json:
+        print(json.dumps(res))
+        return 0
+    for bs, r in res["batch_sizes"].items():
+        print(
+            f"{res['model']} batch {bs}: {r['samples_per_s']:.1f} samples/s, {r['latency_ms_per_sample']:.1f} "
+            f"ms/sample ({res['threads']} threads, {res['device']})"
+        )
+    return 0
+
+
+# -- bench object ----------------------------------------------------------------------------------
+def _add_object(bsub) -> None:
+    p = bsub.add_parser("object", help="time building 6-link objects (geometry only, and the whole CLI)")
+    p.add_argument("--repeats", type=int, default=5, help="objects per measurement (different seeds)")
+    p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
+    p.set_defaults(func=bench_object)
+
+
+def bench_object(args: argparse.Namespace) -> int:
+    from spare_twin.bench.object import bench_object
+
+    with flags(repeats="--repeats"):
+        res = bench_object(args.repeats).to_json()
+    if args.json:
+        print(json.dumps(res))
+        return 0
+    print(f"6-link object, median of {res['objects']}:")
+    print(f"  geometry only (manifold3d parts -> meshes): {res['geometry_s']:.3f} s")
+    print(f"  object folder (STLs, checks, URDF, preview): {res['object_folder_s']:.3f} s")
+    print(
+        f"  whole CLI (new process):                     {res['whole_cli_s']:.3f} s "
+        f"= {res['cli_over_geometry']:.1f} x geometry (python start-up alone: {res['python_startup_s']:.3f} s)"
+    )
+    return 0
+
+
+# -- bench sim2real --------------------------------------------------------------------------------
+def _add_sim2real(bsub) -> None:
+    p = bsub.add_parser(
+        "sim2real",
+        help="sim-to-real table: predict, the measurement and each network alone on captures with every effect",
+        description=SIM2REAL_DESCRIPTION,
+    )
+    p.add_argument(
+        "--out", required=True, metavar="DIR", help="folder for the objects, captures and sim2real.{json,md,png}"
+    )
+    p.add_argument("--objects", type=int, default=24, help="objects to capture (default 24: four per link count)")
+    p.add_argument(
+        "--seed", type=int, default=30000, help="seed of the first object and of the settings (default 30000)"
+    )
+    p.add_argument("--frames", default="15-60", metavar="LO-HI", help="frame counts of the captures (default 15-60)")
+    p.add_argument(
+        "--sweep", default="120-360", metavar="LO-HI", help="arcs of the hand-held paths (deg; default 120-360)"
+    )
+    p.add_argument(
+        "--sensors",
+        default=DEFAULT_SENSORS,
+        metavar="NOISE:WxH,...",
+        help="depth sensors (noise model capture/rigs/noise_NOISE.json at WxH), spread over the objects "
+        f"(default {DEFAULT_SENSORS})",
+    )
+    p.add_argument(
+        "--renderers",
+        default="pybullet,raycast",
+        metavar="NAME,...",
+        help="renderers of the captures, alternating within each n (default pybullet,raycast)",
+    )
+    p.add_argument(
+        "--effects",
+        default="all",
+        metavar="all|none|A,B|FILE.json",
+        help="capture effects: all (default), none, a comma-separated list of effect names, or a JSON file of "
+        "switches and ranges (docs/sensor_effects.md)",
+    )
+    p.add_argument("--clutter-max", type=int, default=4, metavar="N", help="clutter items 0..N (default 4)")
+    p.add_argument("--sim-frames", type=int, default=10, metavar="F", help="frames of the twin in the rig (default 10)")
+    p.add_argument(
+        "--models",
+        metavar="NAME,...",
+        help="networks to score alone: shipped names (models/index.json) or checkpoint files (default: every "
+        "shipped model that can read the captures)",
+    )
+    p.add_argument(
+        "--workers", type=int, default=1, metavar="W", help="objects in parallel processes (default 1; same results)"
+    )
+    p.add_argument("--force", action="store_true", help="replace --out even if it is not an earlier sim2real bench")
+    p.add_argument("--json", action="store_true", help="print the whole table as one JSON object")
+    p.set_defaults(func=bench_sim2real)
+
+
+def _range(text: str, flag: str, kind) -> tuple:
+    """LO-HI (or one value) -> (lo, hi)."""
+    try:
+        parts = [kind(v) for v in text.split("-")]
+    except ValueError:
+        parts = []
+    if len(parts) not in (1, 2):
+        raise SpareTwinError(f"{flag} {text!r}: expected LO-HI, e.g. 15-60")
+    return parts[0], parts[-1]
+
+
+def _names(text: str, flag: str) -> tuple[str, ...]:
+    names = tuple(v.strip() for v in text.split(",") if v.strip())
+    if not names:
+        raise SpareTwinError(f"{flag} {text!r}: give at least one value")
+    return names
+
+
+def bench_sim2real(args: argparse.Namespace) -> int:
+    from spare_twin.bench.scoring import bench_markdown
+    from spare_twin.bench.settings import BenchConfig
+    from spare_twin.bench.sim2real import bench_sim2real as run_bench
+    from spare_twin.sim.effects import parse_effects
+
+    with flags(effects="--effects"):
+        effects = parse_effects(args.effects, "--effects")
+    cfg = BenchConfig(
+        objects=args.objects,
+        seed=args.seed,
+        frames=_range(args.frames, "--frames", int),
+        sweep_deg=_range(args.sweep, "--sweep", float),
+        sensors=_names(args.sensors, "--sensors"),
+        renderers=_names(args.renderers, "--renderers"),
+        effects=effects,
+        clutter_max=args.clutter_max,
+        sim_frames=args.sim_frames,
+    )
+    models = None if args.models is None else _names(args.models, "--models")
+    with flags(
+        objects="--objects",
+        seed="--seed",
+        frames="--frames",
+        sweep_deg="--sweep",
+        sensors="--sensors",
+        renderers="--renderers",
+        effects="--effects",
+        clutter_max="--clutter-max",
+        sim_frames="--sim-frames",
+        models="--models",
+        workers="--workers",
+        force="--force",
+    ):
+        table, files = run_bench(args.out, cfg, models, args.workers, force=args.force)
+    if args.json:
+        print(json.dumps(table))
+    else:
+        print(bench_markdown(table), end="")
+        print(f"wrote {', '.join(files.values())}")
+    return 0
+
+
+# -- bench training --------------------------------------------------------------------------------
+def _add_training(bsub) -> None:
+    p = bsub.add_parser(
+        "training",
+        help="training speed: samples/s per preset under thread / worker / memory-layout settings",
+        description=TRAINING_DESCRIPTION,
+    )
+    p.add_argument("--data", metavar="DATA_DIR", required=True, help="a spare-twin dataset (its train split)")
+    p.add_argument(
+        "--presets",
+        help="comma-separated (default: the multi-view presets of the paper's Table 1 and geo-grey-mv-multitask)",
+    )
+    p.add_argument(
+        "--settings",
+        help="comma-separated THREADS/WORKERS[/cl] (cl: channels-last); the first is the baseline "
+        "(default: the trainer's defaults, then channels-last, a loader worker, and both)",
+    )
+    p.add_argument("--steps", type=int, default=10, help="timed training steps per preset and setting (default 10)")
+    _json_flag(p)
+    p.set_defaults(func=bench_training)
+
+
+def _speed_settings(text: str) -> list:
+    """THREADS/WORKERS[/cl],... -> SpeedSettings."""
+    from spare_twin.bench.training import SpeedSetting
+
+    out = []
+    for item in text.split(","):
+        parts = item.strip().split("/")
+        try:
+            if len(parts) not in (2, 3) or (len(parts) == 3 and parts[2] != "cl"):
+                raise ValueError
+            threads, workers = int(parts[0]), int(parts[1])
+            if threads < 1 or workers < 0:
+                raise ValueError
+        except ValueError:
+            raise SpareTwinError(f"--settings {text!r}: expected THREADS/WORKERS[/cl] items like 2/0,2/1/cl") from None
+        out.append(SpeedSetting(threads, workers, len(parts) == 3))
+    return out
+
+
+def bench_training(args: argparse.Namespace) -> int:
+    from spare_twin.bench.training import bench_training, default_presets, default_settings
+
+    settings = _speed_settings(args.settings) if args.settings else default_settings()
+    presets = [p for p in args.presets.split(",") if p] if args.presets else list(default_presets())
+    with flags(data_dir="--data", presets="--presets", steps="--steps"):
+        res = bench_training(presets, args.data, settings, args.steps, log=_log(args))
+    if args.json:
+        print(json.dumps({"settings": [s.label for s in settings], "presets": [r.to_json(settings) for r in res]}))
+        return 0
+    print(f"\nsamples/s ({', '.join(s.label for s in settings)}); ratio against the first")
+    for r in res:
+        cells = [f"{v:.1f} ({v / r.samples_per_s[0]:.2f}x)" for v in r.samples_per_s]
+        print(f"  {r.preset:<26} " + "  ".join(cells))
     return 0
