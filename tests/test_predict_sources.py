@@ -25,6 +25,7 @@ V2_KEYS = [
     "recording",
     "answer",
     "print_scale",
+    "parts",
 ]
 
 

@@ -16,7 +16,8 @@ def register(sub) -> None:
         "measurement finds no chain). "
         "--json prints version 2 of spare-twin-prediction: n_links, link_lengths_pu (n + 1 values, base first, "
         "paper units), link_lengths_mm (at the print scale used), joint_angles_rad, source (which estimate gave "
-        "which field), then each estimate with its evidence under network and measurement (null where not run); "
+        "which field), then each estimate with its evidence under network and measurement (null where not run), "
+        "and parts (the part dimensions the chain was observed and measured with, --parts); "
         "n_links is null, with a reason, where there is no chain in view or the evidence is too weak.",
     )
     p.add_argument("recording", metavar="REC_DIR", help="recording folder (recording.json)")
@@ -39,6 +40,14 @@ def register(sub) -> None:
         help="physical metres per paper metre, for paper units and link_lengths_mm (default: 0.08; the recording's "
         "own object configuration is never read)",
     )
+    p.add_argument(
+        "--parts",
+        metavar="FILE",
+        help="the part dimensions the chain was printed with, in mm: a JSON file with the parts block of an "
+        'object configuration (e.g. {"link_thickness_mm": 8.0}; the rest the defaults), or an object.json '
+        "or object folder whose parts it takes; the layer pitch, plates and socket the chain is observed and "
+        "measured with (default: the default parts, on which every network was trained)",
+    )
     p.add_argument("--n-links", type=int, help="the known link count, for a lengths-only model only")
     p.add_argument(
         "--yaw-hypotheses",
@@ -54,6 +63,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from spare_twin.commands.common import flags
+    from spare_twin.predict.parts import read_parts
     from spare_twin.predict.run import predict_recording
 
     with flags(
@@ -65,7 +75,9 @@ def run(args) -> int:
         device="--device",
         model="--model",
         answer="--answer",
+        parts="--parts",
     ):
+        parts = read_parts(args.parts) if args.parts is not None else None
         res = predict_recording(
             args.recording,
             args.model,
@@ -76,6 +88,7 @@ def run(args) -> int:
             args.device,
             yaw_hypotheses=args.yaw_hypotheses,
             answer=args.answer,
+            parts=parts,
         )
     if args.json:
         print(json.dumps(res.to_json()))

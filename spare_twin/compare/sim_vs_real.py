@@ -7,7 +7,8 @@
    recording with the same intrinsics, poses and frame count, but no sensor noise.
 4. The same network runs on both recordings through the same path (`predict_recording`) and both
    predictions are scored against the configuration that was printed. The real side (`real`) is
-   `predict` on the real recording alone, exactly as a user runs it without an object folder.
+   `predict` on the real recording alone, exactly as a user runs it, told the parts the object was
+   printed with (`predict --parts`): what the user printed, never its lengths.
 5. A diagnostic (`real_twin_aligned`): the network once more on the real recording, its cameras
    re-aligned onto the fitted printed twin and its base frame taken from the fit. It needs the true
    object, so it measures what the capture path costs, not what `predict` can do.
@@ -245,10 +246,11 @@ def compare(
 
     print("compare: running the network on the real and the sim recording", file=sys.stderr)
     with clock("predict"):
-        # The real side is `predict` on the recording alone: nothing from the object folder or the fit.
-        real_pred = predict_recording(real.root, model, progress=False)
+        # The real side is `predict` on the recording alone: nothing from the object folder or the fit
+        # but the parts it was printed with (what a user says with `predict --parts`), never its lengths.
+        real_pred = predict_recording(real.root, model, progress=False, parts=obj.spec.parts)
         # The sim twin stands at its recording's origin by construction.
-        sim_pred = predict_recording(sim_dir, model, progress=False)
+        sim_pred = predict_recording(sim_dir, model, progress=False, parts=obj.spec.parts)
     with clock("twin-aligned diagnostic"):
         aligned_pred = predict_recording(
             real.root,
@@ -256,6 +258,7 @@ def compare(
             progress=False,
             T_world_base=T_world_base,
             camera_poses=aligned_camera_poses(obj, real, fit, T_world_object, fitted),
+            parts=obj.spec.parts,
         )
     gt = real.ground_truth()
     truth = Truth(

@@ -1,16 +1,20 @@
 """The chain of posed views measured: the observation (`observe.chain`) and its layer measurement
 (`measure.layers`), with a registered sweep's views brought into register on the object and, where
-they still fuse into no chain, its parts looked at alone (`measure_views`)."""
+they still fuse into no chain, its parts looked at alone (`measure_views`). Both read the chain with
+the geometry of the parts it was printed with (`parts`: the default parts unless the user says)."""
 
 from __future__ import annotations
 
 import dataclasses
 import time
+from dataclasses import dataclass
 
-from spare_twin.measure.layers import LayerMeasurement, measure_profile
+from spare_twin.config import PartDims
+from spare_twin.measure.layers import LayerMeasurement, LayersConfig, measure_profile
 from spare_twin.observe.chain import ChainObservation, observe_views
 from spare_twin.observe.on_object import register_on_object
 from spare_twin.observe.points import PosedView
+from spare_twin.observe.profile import ProfileConfig
 from spare_twin.observe.views import REGISTERED_SWEEP, PosedViews, recording_views, sweep_part
 from spare_twin.recording import Recording
 
@@ -25,18 +29,36 @@ MIN_FRAMES_TO_SPLIT = 8
 CLEAN_PART_RMS_M = 0.002
 
 
+@dataclass(frozen=True)
+class Geometry:
+    """The observation's and the measurement's settings for one print's parts."""
+
+    profile: ProfileConfig
+    layers: LayersConfig
+
+
 def measured_chain(
-    rec: Recording, print_scale: float, frame: int | None = None, camera: str | None = None, progress: bool = False
+    rec: Recording,
+    print_scale: float,
+    frame: int | None = None,
+    camera: str | None = None,
+    progress: bool = False,
+    parts: PartDims = PartDims(),
 ) -> tuple[ChainObservation, LayerMeasurement]:
     """`measure_views` of a recording folder's views (`observe.views.recording_views`)."""
-    return measure_views(recording_views(rec, frame, camera, progress=progress), print_scale, progress)
+    return measure_views(recording_views(rec, frame, camera, progress=progress), print_scale, progress, parts=parts)
 
 
 def measure_views(
-    seen: PosedViews, print_scale: float, progress: bool = False, min_arc_deg: float = 0.0
+    seen: PosedViews,
+    print_scale: float,
+    progress: bool = False,
+    min_arc_deg: float = 0.0,
+    parts: PartDims = PartDims(),
 ) -> tuple[ChainObservation, LayerMeasurement]:
-    """The chain's observation in posed views and its layer measurement (`measure.layers.measure_profile`);
-    the observation's `timings_s` gain "measurement", all summed over the tries.
+    """The chain's observation in posed views and its layer measurement (`measure.layers.measure_profile`)
+    with the geometry of `parts` (`ProfileConfig.for_parts`, `LayersConfig.for_parts`); the
+    observation's `timings_s` gain "measurement", all summed over the tries.
 
     A sweep registered here is measured with its views brought into register on the object
     (`observe.on_object`): views that slipped by a degree or a few millimetres along the table blur
@@ -53,11 +75,12 @@ def measure_views(
     Views that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
     `spare_twin.predict.abstain` gives no answer on them)."""
     views = list(seen.views)
-    seen_once = observe_views(views, seen.source, seen.registration_s, print_scale)
-    as_registered = _measure(seen_once, print_scale, min_arc_deg)
+    geometry = Geometry(ProfileConfig.for_parts(parts), LayersConfig.for_parts(parts))
+    seen_once = observe_views(views, seen.source, seen.registration_s, print_scale, profile_cfg=geometry.profile)
+    as_registered = _measure(seen_once, print_scale, geometry, min_arc_deg)
     if seen.source != REGISTERED_SWEEP:
         return as_registered
-    on_object, measured = _on_object(views, seen.registration_s, print_scale)
+    on_object, measured = _on_object(views, seen.registration_s, print_scale, geometry)
     seconds = _add(on_object.timings_s, as_registered[0].timings_s, but="registration")
     if as_registered[1].n_links is not None or len(views) < MIN_FRAMES_TO_SPLIT:
         best = (on_object, measured) if measured.n_links is not None else as_registered
@@ -70,7 +93,7 @@ def measure_views(
         if best is not None and best[1].rms_m <= CLEAN_PART_RMS_M:
             break
         part_views = sweep_part(seen, part, progress)
-        piece, m = _on_object(list(part_views.views), part_views.registration_s, print_scale)
+        piece, m = _on_object(list(part_views.views), part_views.registration_s, print_scale, geometry)
         seconds = _add(seconds, piece.timings_s)
         if m.n_links is not None and (best is None or m.rms_m < best[1].rms_m):
             share = f"frames {100 * part[0]:.0f}-{100 * part[1]:.0f} % of the sweep"
@@ -79,13 +102,14 @@ def measure_views(
     return dataclasses.replace(found, timings_s=seconds), measured
 
 
-def _on_object(views: list[PosedView], registration_s: float, print_scale: float):
+def _on_object(views: list[PosedView], registration_s: float, print_scale: float, geometry: Geometry):
     """(observation, measurement) of registered views brought into register on the object
     (`observe.on_object`); the time that takes is registration, after `registration_s` spent before."""
     t0 = time.perf_counter()
     on_object = register_on_object(views)
     registration_s += time.perf_counter() - t0
-    return _measure(observe_views(on_object, ON_OBJECT_SWEEP, registration_s, print_scale), print_scale)
+    seen = observe_views(on_object, ON_OBJECT_SWEEP, registration_s, print_scale, profile_cfg=geometry.profile)
+    return _measure(seen, print_scale, geometry)
 
 
 def _add(a: dict, b: dict, but: str | None = None) -> dict:
@@ -94,7 +118,7 @@ def _add(a: dict, b: dict, but: str | None = None) -> dict:
 
 
 def _measure(
-    seen: ChainObservation, print_scale: float, min_arc_deg: float = 0.0
+    seen: ChainObservation, print_scale: float, geometry: Geometry, min_arc_deg: float = 0.0
 ) -> tuple[ChainObservation, LayerMeasurement]:
     t0 = time.perf_counter()
     if seen.reason is not None:
@@ -103,6 +127,6 @@ def _measure(
         why = f"not measured: the views go {seen.arc_deg:g} deg round it (at least {min_arc_deg:g})"
         measured = LayerMeasurement(None, None, None, (), reason=why)
     else:
-        measured = measure_profile(seen.object, seen.profile, print_scale)
+        measured = measure_profile(seen.object, seen.profile, print_scale, geometry.layers)
     timings = {**seen.timings_s, "measurement": round(time.perf_counter() - t0, 3)}
     return dataclasses.replace(seen, timings_s=timings), measured

@@ -36,24 +36,43 @@ import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-from spare_twin.config import MAX_MOVING_LINKS
+from spare_twin.config import MAX_MOVING_LINKS, PartDims
 from spare_twin.observe.points import ObjectPoints
-from spare_twin.observe.profile import ChainProfile
+from spare_twin.observe.profile import ChainProfile, parts_geometry_m
+
+#: Points this far above the socket's top are still the socket (its rim, noise).
+SOCKET_MARGIN_M = 0.003
+
+
+def layers_geometry_m(parts: PartDims) -> dict[str, float]:
+    """The measurement's settings that the printed parts set (metres), from the profile's
+    (`observe.profile.parts_geometry_m`: the one place they are derived)."""
+    g = parts_geometry_m(parts)
+    return {
+        "layer_pitch_m": g["layer_pitch_m"],
+        "half_width_m": g["link_width_m"] / 2,
+        "half_thickness_m": g["link_thickness_m"] / 2,
+        "min_height_m": g["keepout_m"] + SOCKET_MARGIN_M,
+    }
+
+
+_DEFAULT_PARTS = layers_geometry_m(PartDims())
 
 
 @dataclass(frozen=True)
 class LayersConfig:
-    """Measurement settings (metres)."""
+    """Measurement settings (metres). The plates' and the socket's are the default parts'
+    (`config.PartDims`); `for_parts` gives another print's."""
 
-    layer_pitch_m: float = 0.0064
-    half_width_m: float = 0.006
+    layer_pitch_m: float = _DEFAULT_PARTS["layer_pitch_m"]
+    half_width_m: float = _DEFAULT_PARTS["half_width_m"]
     """Half a link plate's width: the plate is its centre line thickened by this."""
-    min_height_m: float = 0.02
+    min_height_m: float = _DEFAULT_PARTS["min_height_m"]
     """Points below this are the foot and the socket, not links."""
     radius_m: float = 0.006
     """Neighbourhood (in the chain's plane) whose median t labels a point."""
-    half_thickness_m: float = 0.003
-    """A plate's face lies this far from its centre across the plane (6 mm plates)."""
+    half_thickness_m: float = _DEFAULT_PARTS["half_thickness_m"]
+    """A plate's face lies this far from its centre across the plane (half its thickness)."""
     min_side_cosine: float = 0.3
     """A point whose cameras look at it this squarely along t is on a face, not an edge."""
     max_shear: float = 0.15
@@ -90,6 +109,12 @@ class LayersConfig:
     directions: int = 72
     """Link directions tried by the fit's second start (`_initial_sequential`)."""
     max_points: int = 1500
+
+    @classmethod
+    def for_parts(cls, parts: PartDims, **settings) -> LayersConfig:
+        """The measurement of a chain printed with `parts` (its layer pitch, plates and socket);
+        `settings` override the rest."""
+        return cls(**{**layers_geometry_m(parts), **settings})
 
 
 @dataclass(frozen=True)

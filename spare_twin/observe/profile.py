@@ -8,14 +8,18 @@ points alone and draws them in it:
    bottom of the base link; the median of their horizontal positions;
 2. the plane: at right angles to the links' faces, whose normals (each read in its own depth image)
    pile up along the joint axes (`_plane_direction`);
-3. its sign: a chain's links are stacked in layers, each 6.4 mm further along the joint axes (+y of
-   the object) than its parent, so the links sit at larger t than the base link, never smaller.
+3. its sign: a chain's links are stacked in layers, each a layer pitch (6.4 mm with the default
+   parts) further along the joint axes (+y of the object) than its parent, so the links sit at
+   larger t than the base link, never smaller.
    s is turned so that they do; then s is the object's x, t its y, and joint angles have the
    object's own sign. Where the points do not tell (as many a layer ahead as behind) s stays as
    found;
 4. the image: H x W cells over z in [0, 3.2] and s in [-1.9, 1.9] paper units (points divided by
    the print scale), channels: occupancy, mean t and t extent of the points in a cell, t in layers
-   (6.4 mm, the links' pitch: link k sits at about k).
+   (the links' pitch: link k sits at about k).
+
+The geometry is the printed parts' (`ProfileConfig.for_parts`: layer pitch, plates, socket); the
+defaults are the default parts', on which every network was trained.
 
 It also says when the points are not a chain at all (`reason`): too low or too tall, no base column,
 reaching farther than a chain can, or too thick across its plane.
@@ -30,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spare_twin.config import PartDims
 from spare_twin.observe.points import ObjectPoints
 
 #: The chain's geometry in paper units (docs/design.md): base >= 1.3 * 3/8 after rescaling, whole
@@ -37,17 +42,34 @@ from spare_twin.observe.points import ObjectPoints
 Z_RANGE_PU = (0.0, 3.2)
 S_RANGE_PU = (-1.9, 1.9)
 CHANNELS = ("occupancy", "mean_t", "t_extent")
+#: How far past a plate's faces the base column's points may lie across the plane (noise, registration blur).
+COLUMN_BLUR_M = 0.005
+
+
+def parts_geometry_m(parts: PartDims) -> dict[str, float]:
+    """The profile's settings that the printed parts set (metres): the one place they are derived."""
+    return {
+        "layer_pitch_m": parts.layer_pitch_mm / 1000.0,
+        "keepout_m": (parts.foot_thickness_mm + parts.socket_height_mm) / 1000.0,
+        "link_width_m": parts.link_width_mm / 1000.0,
+        "link_thickness_m": parts.link_thickness_mm / 1000.0,
+        "column_half_depth_m": parts.link_thickness_mm / 2000.0 + COLUMN_BLUR_M,
+    }
+
+
+_DEFAULT_PARTS = parts_geometry_m(PartDims())
 
 
 @dataclass(frozen=True)
 class ProfileConfig:
-    """Profile geometry (metres unless `_pu`) and the chain checks."""
+    """Profile geometry (metres unless `_pu`) and the chain checks. The defaults are the default
+    parts' (`config.PartDims`); `for_parts` gives another print's."""
 
     height: int = 64
     width: int = 80
     boss_band_m: tuple[float, float] = (0.008, 0.02)
     """Heights of the socket boss and the base link's foot: their points locate the base axis."""
-    keepout_m: float = 0.017
+    keepout_m: float = _DEFAULT_PARTS["keepout_m"]
     """Moving links never come below the socket's top (`object.kinematics.keepout_height_m`): up to
     here only the base stands."""
     plane_min_height_m: float = 0.025
@@ -60,8 +82,10 @@ class ProfileConfig:
     min_normal_agreement: float = 0.5
     """A voxel's mean normal this long: its readings agree on a surface."""
     normal_window_deg: float = 4.0
-    layer_pitch_m: float = 0.0064
+    layer_pitch_m: float = _DEFAULT_PARTS["layer_pitch_m"]
     """Links' layer spacing along the joint axes (link thickness + gap)."""
+    link_width_m: float = _DEFAULT_PARTS["link_width_m"]
+    link_thickness_m: float = _DEFAULT_PARTS["link_thickness_m"]
     min_height_pu: float = 0.35
     """Shorter objects are not a chain (the shortest base is 1.3 * 3/8 paper units tall... minus noise)."""
     max_height_pu: float = 3.6
@@ -73,17 +97,23 @@ class ProfileConfig:
     column_band_m: tuple[float, float] = (0.02, 0.04)
     """Heights where the base link alone stands on the base axis (above the socket)."""
     column_half_width_m: float = 0.015
-    column_half_depth_m: float = 0.008
+    column_half_depth_m: float = _DEFAULT_PARTS["column_half_depth_m"]
     wall_reach_m: float = 0.045
     max_wall_ratio: float = 1.0
     """Points in the column's layer beside it (out to `wall_reach_m`) may be at most this many times
     the column's own: more is a wall, not a 12 mm link."""
     min_column_share: float = 0.5
     """At least this share of the points on the base axis just above the socket lie within
-    `column_half_depth_m` of it across the plane (a 6 mm plate plus noise and registration blur)."""
+    `column_half_depth_m` of it across the plane (half a plate plus noise and registration blur)."""
     max_base_width_m: float = 0.16
     """Below `keepout_m` only the foot stands: its 10 cm plate (noise and registration blur lift it
     above the table cut) and the socket boss."""
+
+    @classmethod
+    def for_parts(cls, parts: PartDims, **settings) -> ProfileConfig:
+        """The profile of a chain printed with `parts` (its layer pitch, plates and socket); `settings`
+        override the rest."""
+        return cls(**{**parts_geometry_m(parts), **settings})
 
 
 @dataclass(frozen=True)
@@ -204,9 +234,11 @@ def _no_base_link(z: np.ndarray, s: np.ndarray, t: np.ndarray, cfg: ProfileConfi
     beside = band & (np.abs(s) >= cfg.column_half_width_m) & (np.abs(s) < cfg.wall_reach_m)
     if beside.sum() > cfg.max_wall_ratio * (band & column).sum():
         width = float(np.percentile(s[band], 95) - np.percentile(s[band], 5))
-        return f"what stands there is a wall {100 * width:.1f} cm wide at its foot; a chain's base link is 12 mm wide"
+        link = f"a chain's base link is {1000 * cfg.link_width_m:g} mm wide"
+        return f"what stands there is a wall {100 * width:.1f} cm wide at its foot; {link}"
     if on_axis < cfg.min_column_share:
-        return f"what stands there is {100 * depth:.1f} cm deep at its foot; a chain's base link is 6 mm thick"
+        link = f"a chain's base link is {1000 * cfg.link_thickness_m:g} mm thick"
+        return f"what stands there is {100 * depth:.1f} cm deep at its foot; {link}"
     return None
 
 
@@ -240,7 +272,7 @@ def chain_profile(obj: ObjectPoints, print_scale: float, cfg: ProfileConfig = Pr
 
 
 def draw_profile(s_pu: np.ndarray, z_pu: np.ndarray, t_layers: np.ndarray, cfg: ProfileConfig) -> np.ndarray:
-    """float32 (3, H, W) occupancy, mean t and t extent per cell, t in layers (6.4 mm): link k sits at
+    """float32 (3, H, W) occupancy, mean t and t extent per cell, t in layers (`layer_pitch_m`): link k sits at
     about k, so the image says which link a cell belongs to as plainly as where it is."""
     H, W = cfg.height, cfg.width
     row = np.floor((Z_RANGE_PU[1] - z_pu) / (Z_RANGE_PU[1] - Z_RANGE_PU[0]) * H).astype(np.int64)

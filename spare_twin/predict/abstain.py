@@ -4,14 +4,16 @@ was trained on; the measurement's needs its points to lie on a chain."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 
-from spare_twin.config import MAX_MOVING_LINKS
+from spare_twin.config import MAX_MOVING_LINKS, PartDims
 from spare_twin.measure.layers import LayerMeasurement
 from spare_twin.observe.chain import ChainObservation
 from spare_twin.predict.estimate import Estimate, MeasurementEvidence, NetworkEvidence
+from spare_twin.predict.parts import TRAINED_PARTS, parts_words
 
 #: A network's count stands only where its most probable class has at least this probability.
 MIN_COUNT_PROBABILITY = 0.5
@@ -73,6 +75,17 @@ def network_estimate(
     if any(not math.isfinite(v) for v in (lengths or ()) + (angles or ())):
         return Estimate.none("the network's lengths or angles are not finite numbers", evidence)
     return Estimate(n, lengths, angles, evidence)
+
+
+def note_parts(network: Estimate, parts: PartDims) -> Estimate:
+    """The network's estimate, its evidence saying so where the chain was printed with other parts
+    than the network was trained on (`predict.parts.TRAINED_PARTS`): the profile is drawn with the
+    given parts' layer pitch, but the network never saw such plates, and its estimate is not held
+    back for it (the measurement, which reads them, answers where it finds a chain)."""
+    if parts == TRAINED_PARTS or not isinstance(network.evidence, NetworkEvidence):
+        return network
+    note = f"trained on the default parts only ({parts_words(TRAINED_PARTS)}), not these ({parts_words(parts)})"
+    return dataclasses.replace(network, evidence=dataclasses.replace(network.evidence, other_parts=note))
 
 
 def not_a_chain(obs: ChainObservation, m: LayerMeasurement) -> str | None:

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin.config import MAX_MOVING_LINKS, MIN_MOVING_LINKS
+from spare_twin.config import MAX_MOVING_LINKS, MIN_MOVING_LINKS, PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.measure.chain import measure_views
 from spare_twin.measure.layers import LayerMeasurement
@@ -25,7 +25,7 @@ from spare_twin.nets.registry import decode
 from spare_twin.observe.chain import ChainObservation
 from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
 from spare_twin.observe.views import PosedViews, recording_views
-from spare_twin.predict.abstain import MIN_ARC_DEG, hold_network, measurement_estimate, network_estimate
+from spare_twin.predict.abstain import MIN_ARC_DEG, hold_network, measurement_estimate, network_estimate, note_parts
 from spare_twin.predict.combine import combined
 from spare_twin.predict.estimate import ANSWERS, FIELDS, Estimate, Prediction
 from spare_twin.predict.images import predict_images
@@ -43,6 +43,7 @@ def check_options(
     yaw_hypotheses: int | None = None,
     device: str = "cpu",
     answer: str = "combined",
+    parts: PartDims | None = None,
 ) -> None:
     """`predict_recording`'s options are usable; else an error naming the parameter. Checked before the
     model and the recording are read, so a typo costs no registration."""
@@ -67,6 +68,8 @@ def check_options(
         raise SpareTwinError("device cuda: no CUDA device is available here; use cpu")
     if answer not in ANSWERS:
         raise SpareTwinError(f"answer {answer!r}: must be one of {', '.join(ANSWERS)}")
+    if parts is not None and not isinstance(parts, PartDims):
+        raise SpareTwinError(f"parts {type(parts).__name__}: must be the printed parts' dimensions (a PartDims)")
 
 
 def _refuse(value, name: str, why: str) -> None:
@@ -87,6 +90,7 @@ def predict_recording(
     T_world_base: np.ndarray | None = None,
     camera_poses: dict | None = None,
     answer: str = "combined",
+    parts: PartDims | None = None,
 ) -> Prediction:
     """`predict`'s answer for a recording folder. The profile model (the default) and the measurement
     read the recording's posed views (`observe.views.recording_views`: `frame` for a rig, `camera` for
@@ -95,9 +99,11 @@ def predict_recording(
     that do not apply to the model or answer chosen are refused, but for `T_world_base` and
     `camera_poses` (`compare`'s twin-aligned diagnostic), which only posed image networks read: the
     profile path finds the chain's base on the table itself. The print scale is `print_scale` or the
-    default: the recording's own object configuration is never read."""
-    check_options(frame, print_scale, n_links, yaw_hypotheses, device, answer)
+    default, the printed parts `parts` (`predict.parts.read_parts`) or the defaults: the recording's
+    own object configuration is never read."""
+    check_options(frame, print_scale, n_links, yaw_hypotheses, device, answer, parts)
     scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
+    parts = parts or PartDims()
     if answer == "measurement":
         _refuse(model_path, "model", "--answer measurement runs no network")
     net = model = None
@@ -111,7 +117,7 @@ def predict_recording(
         rec = Recording.open(rec_dir)
         seen = recording_views(rec, frame, camera, progress=progress)
         name = str(model_path) if model_path else None
-        return predict_views(seen, model, net, name, answer, scale, device, rec_dir, progress)
+        return predict_views(seen, model, net, name, answer, scale, device, rec_dir, progress, parts)
     if net.arch != "conv3d_per_n":
         _refuse(n_links, "n_links", f"applies to lengths-only models only; {Path(model_path).name} counts the links")
     return predict_images(
@@ -130,6 +136,7 @@ def predict_recording(
         yaw_hypotheses or 4,
         T_world_base,
         camera_poses,
+        parts=parts,
     )
 
 
@@ -143,12 +150,14 @@ def predict_views(
     device: str = "cpu",
     recording: str | Path = "",
     progress: bool = False,
+    parts: PartDims = PartDims(),
 ) -> Prediction:
     """The core: posed views in memory -> the chain observed and measured (`measure.chain.measure_views`)
-    -> the yaw-free profile network (`model`, `net`: a loaded profile checkpoint; None with
-    `answer="measurement"`) -> the answer `answer` asks for, with both estimates and their sources."""
-    obs, m = measure_views(seen, print_scale, progress, min_arc_deg=MIN_ARC_DEG)
-    return answer_of(obs, m, model, net, model_name, answer, print_scale, device, recording)
+    with the geometry of the printed `parts` -> the yaw-free profile network (`model`, `net`: a loaded
+    profile checkpoint; None with `answer="measurement"`) -> the answer `answer` asks for, with both
+    estimates and their sources."""
+    obs, m = measure_views(seen, print_scale, progress, min_arc_deg=MIN_ARC_DEG, parts=parts)
+    return answer_of(obs, m, model, net, model_name, answer, print_scale, device, recording, parts)
 
 
 def answer_of(
@@ -161,9 +170,12 @@ def answer_of(
     print_scale: float,
     device: str = "cpu",
     recording: str | Path = "",
+    parts: PartDims = PartDims(),
 ) -> Prediction:
     """The prediction of an observation and its measurement: the profile network run on the
-    observation where `answer` asks for it, the estimates held to what they can answer, combined."""
+    observation where `answer` asks for it, the estimates held to what they can answer, combined.
+    `parts`: what the observation was made with (the network's evidence says where it was trained
+    on others, `predict.abstain.note_parts`)."""
     import torch
 
     common = dict(
@@ -174,6 +186,7 @@ def answer_of(
         print_scale=print_scale,
         network_input=obs.profile.image,
         T_world_profile=obs.T_world_profile,
+        parts=parts,
     )
     measurement = measurement_estimate(obs, m)  # measured whatever the answer: its evidence holds the network too
     if obs.reason is not None:  # nothing to show the network: the answer is no answer, whichever was asked
@@ -185,7 +198,7 @@ def answer_of(
     if answer != "measurement":
         with torch.no_grad():
             res = decode(model, net, {"x": torch.from_numpy(obs.profile.image[None]).to(device)})
-        network = hold_network(network_estimate(res, 0, net), obs, m)
+        network = note_parts(hold_network(network_estimate(res, 0, net), obs, m), parts)
     timings = {**obs.timings_s, "network": round(time.perf_counter() - t0, 4)}
     if answer == "network":
         chosen, source = network, _all(network, "network")
