@@ -3,9 +3,10 @@ answer on the recording `live` wrote.
 
 An update reads `views` placed frames spread evenly over everything kept (the same rule `predict`
 uses to pick a sweep's frames: evenly spaced through the stream), brings them into register on the
-object (`observe.on_object`, as `predict` does for a sweep it registered) and hands them to
-`predict`'s core (`predict.run.predict_views`): the same observation, measurement, network and
-combination, so an update's answer has `predict --json`'s keys and sources. The final answer is
+object (`observe.on_object`, as `predict` does for a sweep it registered) and goes through
+`predict`'s core: the same observation and measurement (`measure.chain.measure_views`, in a process
+of its own: `live.worker`), network and combination (`predict.run.answer_of`), so an update's
+answer has `predict --json`'s keys and sources. The final answer is
 `predict.run.predict_recording` on the written recording, so the last line `live` prints is what
 `predict` says of that recording.
 """
@@ -19,13 +20,10 @@ import numpy as np
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.live.track import PlacedFrame
-from spare_twin.measure.chain import ON_OBJECT_SWEEP
+from spare_twin.live.worker import MeasureProcess, measure_arrays, view_arrays
 from spare_twin.nets import checkpoint as ckpt
-from spare_twin.observe.on_object import register_on_object
-from spare_twin.observe.points import PosedView
-from spare_twin.observe.views import PosedViews
 from spare_twin.predict.estimate import MeasurementEvidence, NetworkEvidence, Prediction
-from spare_twin.predict.run import check_options, predict_recording, predict_views
+from spare_twin.predict.run import answer_of, check_options, predict_recording
 
 #: An answer is strong evidence when the measurement gave it and its chain fits its points this well
 #: (RMS, metres; `measure.chain.CLEAN_PART_RMS_M`: a sweep in register fits to 0.2-0.5 mm) ...
@@ -71,17 +69,26 @@ def spread(kept: list[PlacedFrame], views: int) -> list[PlacedFrame]:
     return [kept[i] for i in picks]
 
 
-def estimate_from_frames(est: Estimator, kept: list[PlacedFrame], views: int = 16) -> Prediction:
-    """`predict`'s answer from `views` of the placed frames (see the module doc)."""
+def estimate_from_frames(
+    est: Estimator, kept: list[PlacedFrame], views: int = 16, process: MeasureProcess | None = None
+) -> Prediction:
+    """`predict`'s answer from `views` of the placed frames (see the module doc); the observation and
+    measurement in `process` (`live.worker`) when one is given, else here."""
+    return estimate_and_arc(est, kept, views, process)[0]
+
+
+def estimate_and_arc(
+    est: Estimator, kept: list[PlacedFrame], views: int = 16, process: MeasureProcess | None = None
+) -> tuple[Prediction, float | None]:
+    """`estimate_from_frames`, and how far round the chain the views went (degrees; None where no
+    chain was seen)."""
     chosen = spread(kept, views)
-    posed = [
-        PosedView(p.frame.depth_u16.astype(np.float32) * np.float32(p.frame.depth_scale), p.frame.K,
-                  p.T_world_camera, p.frame.color)
-        for p in chosen
-    ]  # fmt: skip
-    on_object = register_on_object(posed)
-    seen = PosedViews(tuple(on_object), ON_OBJECT_SWEEP, frames_in_recording=len(kept))
-    return predict_views(seen, est.model, est.net, est.model_name, est.answer, est.print_scale)
+    if process is not None:
+        obs, m = process.measure(chosen, len(kept), est.print_scale)
+    else:
+        obs, m = measure_arrays(view_arrays(chosen), len(kept), est.print_scale)
+    pred = answer_of(obs, m, est.model, est.net, est.model_name, est.answer, est.print_scale)
+    return pred, (None if obs.reason is not None else obs.arc_deg)
 
 
 def final_estimate(est: Estimator, rec_dir: str | Path) -> Prediction:

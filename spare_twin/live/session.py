@@ -5,8 +5,9 @@ Three threads share the work:
 
 - the reader takes each frame from the source as it comes (`live.sources`), appends it to the
   recording (`RecordingWriter` as a stream: nothing seen is lost) and offers it to a queue of
-  `queue_frames`; when the queue is full the frame is dropped from the estimate (it is still in the
-  recording) and counted: frames that come faster than they can be used never pile up. With
+  `queue_frames`; when the queue is full the oldest frame waiting is dropped from the estimate (it is
+  still in the recording) and counted: frames that come faster than they can be used never pile up,
+  and the tracker takes the newest. With
   `speed` 0 (a replay as fast as it is used) the reader waits instead, and no frame is dropped;
 - the tracker (the calling thread) places each queued frame against the last one (`live.track`);
 - the estimator, every `update_s` seconds that new frames were placed, estimates the chain from the
@@ -32,10 +33,13 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
-from spare_twin.live.estimate import Estimator, estimate_from_frames, final_estimate, is_strong
-from spare_twin.live.sources import Source, StreamFrame
+from spare_twin.live.estimate import Estimator, estimate_and_arc, final_estimate, is_strong, spread
+from spare_twin.live.sources import Source, StoredFrame, StreamFrame
 from spare_twin.live.track import Tracker
+from spare_twin.live.worker import MeasureProcess
+from spare_twin.observe.chain import arc_round_deg
 from spare_twin.output import check_output
+from spare_twin.predict.abstain import MIN_ARC_DEG
 from spare_twin.predict.estimate import Prediction
 from spare_twin.recording import Camera, RecordingWriter
 
@@ -69,6 +73,9 @@ class LiveConfig:
     """Frames are placed and estimated at most this wide (`live.track`)."""
     max_kept: int = 120
     """Placed frames kept in memory for the estimate (`live.track`)."""
+    estimate_process: bool = True
+    """Observe and measure in a process of its own (`live.worker`), beside the tracker; False: on
+    the estimator thread, taking turns with the tracker."""
 
     def __post_init__(self):
         for name in ("update_s", "stable_s"):
@@ -121,6 +128,10 @@ class LiveResult:
     frames_dropped: int = 0
     frames_placed: int = 0
     stream_s: float = 0.0
+    """Stream seconds of the last frame received."""
+    stream_wall_s: float = 0.0
+    """Wall seconds from the first frame's arrival to the last's (more than `stream_s`: the reader
+    fell behind the source)."""
 
 
 class _Shared:
@@ -138,18 +149,19 @@ class _Shared:
         self.dropped = 0
         self.t0_wall: float | None = None
         self.last_t_s = 0.0
+        self.last_wall: float | None = None
 
 
 def _read(source: Source, writer: RecordingWriter, q: queue.Queue, sh: _Shared, wait: bool) -> None:
     """The reader thread (see the module doc)."""
     try:
         for f in source.frames(sh.stop):
-            writer.append(f.color_rgb, f.depth_u16, f.t_s)
+            f.write_to(writer)
             with sh.lock:
                 sh.received += 1
-                sh.last_t_s = f.t_s
+                sh.last_t_s, sh.last_wall = f.t_s, time.monotonic()
                 if sh.t0_wall is None:
-                    sh.t0_wall = time.monotonic()
+                    sh.t0_wall = sh.last_wall
             if wait:
                 while not sh.stop.is_set():
                     try:
@@ -158,17 +170,30 @@ def _read(source: Source, writer: RecordingWriter, q: queue.Queue, sh: _Shared, 
                     except queue.Full:
                         continue
             else:
-                try:
-                    q.put_nowait(f)
-                except queue.Full:
-                    with sh.lock:
-                        sh.dropped += 1
+                _offer_newest(q, f, sh)
             if sh.stop.is_set():
                 break
     except BaseException as err:  # handed to the calling thread, which raises it
         sh.error = err
     finally:
         sh.done.set()
+
+
+def _offer_newest(q: queue.Queue, f, sh: _Shared) -> None:
+    """Queue `f`; when the queue is full, the oldest frame waiting goes instead (counted as dropped):
+    the tracker then always takes the newest frames, and the estimate trails the camera by one
+    frame's placing rather than by the queue's length of stale frames."""
+    while True:
+        try:
+            q.put_nowait(f)
+            return
+        except queue.Full:
+            try:
+                q.get_nowait()
+            except queue.Empty:  # the tracker took it meanwhile
+                continue
+            with sh.lock:
+                sh.dropped += 1
 
 
 def _same(a: Prediction, b: Prediction) -> bool:
@@ -224,10 +249,32 @@ def run_live(
     q: queue.Queue = queue.Queue(maxsize=cfg.queue_frames)
     writer = RecordingWriter(out, [camera], None, info.fps, info.source, depth_scale=info.depth_scale,
                              kind=LIVE, inputs=inputs, force=force)  # fmt: skip
+    # started (and waited for) before the stream, so that its start-up takes nothing from the first frames
+    process = MeasureProcess() if cfg.estimate_process else None
+    try:
+        _run(source, writer, est, cfg, tracker, res, sh, q, on_update, say, view, wait_for_use, process)
+    finally:
+        if process is not None:
+            process.close()
+    res.frames_received, res.frames_dropped, res.frames_placed = sh.received, sh.dropped, tracker.placed
+    res.stream_s = sh.last_t_s
+    res.stream_wall_s = 0.0 if sh.t0_wall is None else sh.last_wall - sh.t0_wall
+    pred = final_estimate(est, out)
+    picked = min(res.frames_received, 60)  # predict's own pick of a sweep's frames
+    final = Update(pred, sh.last_t_s, _wall(sh), picked, sh.received, tracker.placed, sh.dropped, final=True)
+    res.final = final
+    on_update(final)
+    if view is not None:
+        view.show_update(final, tracker)
+    return res
+
+
+def _run(source, writer, est, cfg, tracker, res, sh, q, on_update, say, view, wait_for_use, process) -> None:
+    """The three threads over the written recording (see the module doc)."""
     with writer:
         reader = threading.Thread(target=_read, args=(source, writer, q, sh, wait_for_use), daemon=True)
-        estimator = threading.Thread(target=_estimate_loop, args=(est, tracker, cfg, sh, res, on_update, say, view))
-        estimator.daemon = True
+        loop_args = (est, tracker, cfg, sh, res, on_update, say, view, process)
+        estimator = threading.Thread(target=_estimate_loop, args=loop_args, daemon=True)
         try:
             reader.start()
             estimator.start()
@@ -249,16 +296,6 @@ def run_live(
             raise sh.error
         if res.interrupted:
             say(f"stopped by Ctrl-C after {writer.frames_written} frames; recording finalised")
-    res.frames_received, res.frames_dropped, res.frames_placed = sh.received, sh.dropped, tracker.placed
-    res.stream_s = sh.last_t_s
-    pred = final_estimate(est, out)
-    picked = min(res.frames_received, 60)  # predict's own pick of a sweep's frames
-    final = Update(pred, sh.last_t_s, _wall(sh), picked, sh.received, tracker.placed, sh.dropped, final=True)
-    res.final = final
-    on_update(final)
-    if view is not None:
-        view.show_update(final, tracker)
-    return res
 
 
 def _drain(q: queue.Queue) -> None:
@@ -277,7 +314,7 @@ def _track(tracker: Tracker, q: queue.Queue, sh: _Shared, view) -> None:
     """The tracker: place queued frames until the reader is done and the queue empty."""
     while not (sh.done.is_set() and q.empty()):
         try:
-            f: StreamFrame = q.get(timeout=0.1)
+            f: StreamFrame | StoredFrame = q.get(timeout=0.1)
         except queue.Empty:
             continue
         placed = tracker.add(f)
@@ -300,11 +337,29 @@ def _adapted(views: int, took_s: float, cfg: LiveConfig) -> int:
     return views
 
 
+#: Degrees short of `MIN_ARC_DEG` that the placed frames may go round the chain's axis and still be
+#: estimated (the axis is the last update's, and bringing views into register on the object moves them
+#: a little).
+ARC_MARGIN_DEG = 5.0
+
+
+def _too_little_arc(kept, n_views: int, axis: np.ndarray | None) -> bool:
+    """Whether the frames an update would read go so little round the chain (about `axis`, the last
+    update's, where it saw the chain but too little of it) that it would measure nothing again."""
+    if axis is None:
+        return False
+    return arc_round_deg(spread(kept, n_views), axis) < MIN_ARC_DEG - ARC_MARGIN_DEG
+
+
 def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Shared, res: LiveResult, on_update, say,
-                   view) -> None:  # fmt: skip
+                   view, process: MeasureProcess | None = None) -> None:  # fmt: skip
     """The estimator thread: an update every `update_s` while new frames are placed, and a last one
-    from `views` placed frames once the tracker has ended."""
+    from `views` placed frames once the tracker has ended. Until the frames go far enough round the
+    chain to tell its layers apart (`MIN_ARC_DEG`, `_too_little_arc`), no update is made: it would
+    only say so again, and on a busy machine it held the first estimate with a count back by a whole
+    update's time."""
     used_placed, next_at, views, last_full = 0, None, min(cfg.start_views, cfg.views), False
+    axis = None  # the chain's axis, while the views went too little round it to measure
     try:
         while not sh.stop.is_set():
             ended = sh.tracked.is_set()  # read before the snapshot: then every frame placed is in it
@@ -317,9 +372,13 @@ def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Share
             if not ended and (waiting or len(kept) < min(cfg.first_views, cfg.views) or placed == used_placed):
                 sh.stop.wait(0.05)
                 continue
-            next_at = now + cfg.update_s
             n_views = cfg.views if ended else views  # the stream has ended: no rate to keep
-            pred = estimate_from_frames(est, kept, n_views)
+            if not ended and _too_little_arc(kept, n_views, axis):
+                sh.stop.wait(0.05)
+                continue
+            next_at = now + cfg.update_s
+            pred, arc_deg = estimate_and_arc(est, kept, n_views, process)
+            axis = pred.T_world_profile if arc_deg is not None and arc_deg < MIN_ARC_DEG else None
             views = _adapted(views, time.monotonic() - now, cfg)
             used_placed, last_full = placed, ended
             u = Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), n_views), received, placed, dropped)

@@ -160,6 +160,16 @@ class RecordingWriter:
         self.add_encoded(self.cameras[0].name, len(self._stream_times_s), png, depth_u16)
         self._stream_times_s.append(float(timestamp_s))
 
+    def append_encoded(self, color_png: bytes, depth_png: bytes, timestamp_s: float) -> None:
+        """`append` of a frame already stored as a recording stores it (a replay copies its files:
+        nothing decoded, nothing encoded again)."""
+        if self.n_frames is not None:
+            raise SpareTwinError(f"{self.root}: append is for streams of unknown length; use add_frame")
+        cam, frame = self.cameras[0].name, len(self._stream_times_s)
+        write_bytes_atomic(self._file(cam, "color", frame), color_png)
+        write_bytes_atomic(self._file(cam, "depth", frame), depth_png)
+        self._stream_times_s.append(float(timestamp_s))
+
     def set_pose(self, cam: str, frame: int, T_world_camera: np.ndarray) -> None:
         self._poses[cam][frame] = T_world_camera
 
