@@ -94,10 +94,16 @@ def memory_bytes() -> int:
         return 8 * 2**30
 
 
+def check_whole(name: str, value, least: int = 1) -> int:
+    """`value` is a whole number (an int, not a bool) of at least `least`; the error starts with `name`."""
+    if isinstance(value, bool) or not isinstance(value, int) or value < least:
+        raise SpareTwinError(f"{name} {value!r}: must be a whole number, at least {least}")
+    return value
+
+
 def check_count(name: str, value, upper: int, why: str, lower: int = 1) -> int:
     """`value` is a whole number within lower..upper; `why` says where the upper bound comes from."""
-    if isinstance(value, bool) or not isinstance(value, int) or value < lower:
-        raise SpareTwinError(f"{name} {value!r}: must be a whole number, at least {lower}")
+    check_whole(name, value, lower)
     if value > upper:
         raise SpareTwinError(f"{name} {value}: at most {upper:,} ({why})")
     return value

@@ -122,6 +122,18 @@ def handheld_rec(printed_object, tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def sweep(printed_object, tmp_path_factory):
+    """A hand-held sweep with its poses hidden, 16 frames at 320 x 240 (a sensor's stream): what `live`
+    replays and `predict` must register itself."""
+    from spare_twin.cli import main
+
+    out = tmp_path_factory.mktemp("sweep") / "rec"
+    argv = ["render", str(printed_object.root), "--out", str(out), "--path", "handheld", "--hide-poses"]
+    assert main([*argv, "--frames", "16", "--resolution", "320x240", "--noise", "realsense_sr300", "--seed", "2"]) == 0
+    return out
+
+
+@pytest.fixture(scope="session")
 def registered_rec(handheld_rec, tmp_path_factory):
     """A copy of the hand-held recording after `spare-twin capture register` (fast settings), and its JSON."""
     import io

@@ -21,17 +21,6 @@ SPARE_TWIN = Path(sys.executable).with_name("spare-twin")
 
 
 @pytest.fixture(scope="module")
-def sweep(printed_object, tmp_path_factory):
-    """A hand-held sweep with its poses hidden, 16 frames at 320 x 240 (a sensor's stream)."""
-    from spare_twin.cli import main
-
-    out = tmp_path_factory.mktemp("sweep") / "rec"
-    argv = ["render", str(printed_object.root), "--out", str(out), "--path", "handheld", "--hide-poses"]
-    assert main([*argv, "--frames", "16", "--resolution", "320x240", "--noise", "realsense_sr300", "--seed", "2"]) == 0
-    return out
-
-
-@pytest.fixture(scope="module")
 def replayed(sweep, tmp_path_factory):
     """`live --replay --speed 0 --jsonl --rrd` of the hand-held sweep (every frame used: deterministic
     placing), and `predict --json` on the recording it wrote."""

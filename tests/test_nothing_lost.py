@@ -11,7 +11,6 @@ and every pre-existing entry stays byte-identical (links compared as links)."""
 from __future__ import annotations
 
 import errno
-import hashlib
 import json
 import os
 import shutil
@@ -20,7 +19,7 @@ from pathlib import Path
 
 import pytest
 from capture_helpers import APC
-from conftest import run_cli
+from conftest import run_cli, tree
 
 from spare_twin import output
 from spare_twin.output import MARKER, process
@@ -28,24 +27,7 @@ from spare_twin.output import MARKER, process
 BOOT = process._boot_id()
 
 
-def snapshot(root: Path) -> dict[str, tuple]:
-    """Every entry under root, hidden ones included, links not followed: ("dir",), ("link", target) or
-    ("file", sha256)."""
-    out = {}
-    for dirpath, dirnames, filenames in os.walk(root):
-        for name in dirnames + filenames:
-            p = Path(dirpath) / name
-            rel = p.relative_to(root).as_posix()
-            if p.is_symlink():
-                out[rel] = ("link", os.readlink(p))
-            elif p.is_dir():
-                out[rel] = ("dir",)
-            else:
-                out[rel] = ("file", hashlib.sha256(p.read_bytes()).hexdigest())
-    return out
-
-
-def add_users_things(root: Path, inside: str | None = None) -> dict[str, tuple]:
+def add_users_things(root: Path, inside: str | None = None) -> dict[str, str]:
     """What a user adds to an output: a hidden file, a settings file, a dangling link to a folder, a link
     to a file, an empty folder, a folder of their own with a hidden file deep in it, and (`inside`) a
     hidden file in one of the command's folders. Returns their snapshot."""
@@ -58,7 +40,7 @@ def add_users_things(root: Path, inside: str | None = None) -> dict[str, tuple]:
     (root / "mine" / "deep" / ".hidden").write_bytes(b"\0\1\2")
     if inside:
         (root / inside / ".thumbs.db").write_bytes(b"thumbs")
-    return {k: v for k, v in snapshot(root).items() if _users(k, inside)}
+    return {k: v for k, v in tree(root).items() if _users(k, inside)}
 
 
 def _users(rel: str, inside: str | None) -> bool:
@@ -68,8 +50,8 @@ def _users(rel: str, inside: str | None) -> bool:
     )
 
 
-def kept(root: Path, users: dict[str, tuple]) -> bool:
-    now = snapshot(root)
+def kept(root: Path, users: dict[str, str]) -> bool:
+    now = tree(root)
     return all(now.get(k) == v for k, v in users.items())
 
 
@@ -109,9 +91,9 @@ def test_register_keeps_every_file_it_did_not_write(tmp_path, capsys):
     assert temporaries(tmp_path) == []
 
     (rec / "object.ply").write_text("my own scan")  # a registration without an object would remove it
-    before = snapshot(tmp_path)
+    before = tree(tmp_path)
     err = one_line_error(*run_cli(["capture", "register", str(rec), "--object", "skip"], capsys)[::2])
-    assert f"{rec}/object.ply: not written by spare-twin" in err and snapshot(tmp_path) == before
+    assert f"{rec}/object.ply: not written by spare-twin" in err and tree(tmp_path) == before
 
 
 def test_compare_registers_its_real_recording_keeping_the_users_files(
@@ -138,11 +120,11 @@ def test_compare_registers_its_real_recording_keeping_the_users_files(
 def test_register_of_the_current_folder_says_what_it_would_do(tmp_path, capsys, monkeypatch):
     rec = tmp_path / "rec"
     import_apc(rec, capsys)
-    before = snapshot(tmp_path)
+    before = tree(tmp_path)
     monkeypatch.chdir(rec)
     err = one_line_error(*run_cli(["capture", "register", "."], capsys)[::2])
     assert "current folder" in err and "update in place" in err and "run this from outside it" in err
-    assert "output" not in err and snapshot(tmp_path) == before
+    assert "output" not in err and tree(tmp_path) == before
 
 
 def test_linked_colour_folder_registers_and_a_linked_camera_folder_is_refused_by_name(tmp_path, capsys):
@@ -158,10 +140,10 @@ def test_linked_colour_folder_registers_and_a_linked_camera_folder_is_refused_by
     import_apc(other, capsys)
     shutil.move(other / "cameras/cam0", tmp_path / "cam0")
     (other / "cameras/cam0").symlink_to("../../cam0")
-    before = snapshot(tmp_path)
+    before = tree(tmp_path)
     err = one_line_error(*run_cli(["capture", "register", str(other)], capsys)[::2])
     assert f"{other}/cameras/cam0: is a symbolic link" in err and ".spare-twin-" not in err
-    assert snapshot(tmp_path) == before
+    assert tree(tmp_path) == before
 
 
 # -- replacing an earlier output of the same command -------------------------------------------------
@@ -171,17 +153,17 @@ def test_object_rerun_keeps_the_users_files_and_refuses_to_overwrite_one(tmp_pat
     obj = tmp_path / "obj"
     argv = ["object", "--links", "2", "--seed", "1", "--out", str(obj)]
     assert run_cli([*argv, "--no-preview"], capsys)[0] == 0
-    first = snapshot(obj)
+    first = tree(obj)
     users = add_users_things(obj)
     code, _, err = run_cli([*argv, "--no-preview"], capsys)
     assert code == 0, err
-    assert kept(obj, users) and {k: v for k, v in snapshot(obj).items() if not _users(k, None)} == first
+    assert kept(obj, users) and {k: v for k, v in tree(obj).items() if not _users(k, None)} == first
 
     (obj / "preview.png").write_bytes(b"my own photo")  # a path the next run writes itself
-    before = snapshot(tmp_path)
+    before = tree(tmp_path)
     err = one_line_error(*run_cli(argv, capsys)[::2])
     assert "holds preview.png" in err and "--force replaces it" in err
-    assert snapshot(tmp_path) == before  # refused before anything was replaced
+    assert tree(tmp_path) == before  # refused before anything was replaced
     code, _, err = run_cli([*argv, "--force"], capsys)
     assert code == 0, err
     assert (obj / "preview.png").read_bytes()[:4] == b"\x89PNG" and kept(obj, users)
@@ -224,16 +206,16 @@ def test_an_older_marker_is_replaced_only_where_nothing_would_be_dropped(tmp_pat
     assert "files" in json.loads((rec / MARKER).read_text())
     older_marker()
     (rec / "my_notes.txt").write_text("mine")
-    before = snapshot(tmp_path)
+    before = tree(tmp_path)
     argv = ["capture", "import", str(APC), "--layout", "7scenes", "--out", str(rec), "--json"]
     err = one_line_error(*run_cli(argv, capsys)[::2])
     assert "older spare-twin" in err and "my_notes.txt" in err and "--force replaces it" in err
-    assert snapshot(tmp_path) == before
+    assert tree(tmp_path) == before
     (rec / "my_notes.txt").unlink()
-    before = snapshot(tmp_path)
+    before = tree(tmp_path)
     argv += ["--max-frames", "2"]
     err = one_line_error(*run_cli(argv, capsys)[::2])  # old frames would be mixed in, or guessed at
-    assert "000002.png" in err and snapshot(tmp_path) == before
+    assert "000002.png" in err and tree(tmp_path) == before
     assert run_cli([*argv, "--force"], capsys)[0] == 0
     assert len(list((rec / "cameras/cam0/color").iterdir())) == 2
 
@@ -366,7 +348,7 @@ def test_a_swap_by_copies_cut_short_puts_the_old_output_back(tmp_path, monkeypat
     with output.writing(out, "render") as tmp:
         (tmp / "old.txt").write_text("old")
     users = add_users_things(out)
-    before = snapshot(tmp_path)
+    before = tree(tmp_path)
     real_rename, interrupted = os.rename, []
 
     def rename(src, dst, *a, **kw):
@@ -382,7 +364,7 @@ def test_a_swap_by_copies_cut_short_puts_the_old_output_back(tmp_path, monkeypat
     with pytest.raises(KeyboardInterrupt), output.writing(out, "render") as tmp:
         (tmp / "new.txt").write_text("new")
     monkeypatch.undo()
-    assert interrupted and snapshot(tmp_path) == before and kept(out, users)
+    assert interrupted and tree(tmp_path) == before and kept(out, users)
 
     # the same cut by SIGKILL: the copy and the new output are left; the next run puts the copy back
     dead = "999999999-1-00000000"
@@ -392,7 +374,7 @@ def test_a_swap_by_copies_cut_short_puts_the_old_output_back(tmp_path, monkeypat
     (new / "new.txt").write_text("new")
     (out / "old.txt").unlink()  # half deleted
     output.clean_stale(out)
-    assert snapshot(tmp_path) == before
+    assert tree(tmp_path) == before
 
 
 def test_an_empty_output_path_is_said_to_be_empty(printed_object, tmp_path, capsys, monkeypatch):

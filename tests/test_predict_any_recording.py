@@ -7,19 +7,7 @@ import json
 import subprocess
 import sys
 
-import pytest
 from capture_helpers import TUM_K, TUM_PAIR
-
-
-@pytest.fixture(scope="module")
-def hidden_capture(printed_object, tmp_path_factory):
-    """A hand-held capture with its poses hidden (predict must register it)."""
-    from spare_twin.cli import main
-
-    out = tmp_path_factory.mktemp("hidden") / "rec"
-    argv = ["render", str(printed_object.root), "--out", str(out), "--path", "handheld", "--hide-poses"]
-    assert main([*argv, "--frames", "16", "--resolution", "320x240", "--noise", "realsense_sr300", "--seed", "2"]) == 0
-    return out
 
 
 def _predict(rec, *extra) -> subprocess.CompletedProcess:
@@ -27,8 +15,8 @@ def _predict(rec, *extra) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
 
 
-def test_predict_json_has_joint_angles_and_is_the_same_bytes_every_run(hidden_capture):
-    first, second = _predict(hidden_capture, "--json"), _predict(hidden_capture, "--json")
+def test_predict_json_has_joint_angles_and_is_the_same_bytes_every_run(sweep):
+    first, second = _predict(sweep, "--json"), _predict(sweep, "--json")
     assert first.returncode == 0, first.stderr[-2000:]
     assert first.stdout == second.stdout  # registration, observation, network and chain fit: deterministic
     res = json.loads(first.stdout)

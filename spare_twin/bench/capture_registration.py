@@ -20,6 +20,7 @@ from spare_twin.capture.importers import ImportOptions, import_folder
 from spare_twin.capture.pipeline import register_recording
 from spare_twin.capture.registration import RegistrationConfig, relative_pose_errors
 from spare_twin.errors import SpareTwinError
+from spare_twin.validate import check_whole
 
 GOAL_ROTATION_DEG = 2.0
 GOAL_TRANSLATION_MM = 20.0
@@ -39,8 +40,7 @@ def bench_registration(
     if not src.is_dir():
         raise SpareTwinError(f"data_dir {data_dir}: no apc_shelf_realsense/ folder in it")
     for g in gaps:
-        if not isinstance(g, int) or isinstance(g, bool) or g < 1:
-            raise SpareTwinError(f"gaps {g}: each gap must be a whole number of frames, at least 1")
+        check_whole("gaps", g)
     cfg = cfg or RegistrationConfig()
     with tempfile.TemporaryDirectory(prefix="spare-twin-bench-", dir=work_dir) as tmp:
         t0 = time.perf_counter()

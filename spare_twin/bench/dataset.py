@@ -38,6 +38,7 @@ from spare_twin.io import write_bytes_atomic
 from spare_twin.sim.motion import object_motion
 from spare_twin.sim.scene import sample_scene
 from spare_twin.sim.twin import Lighting, projection_matrix, view_matrix
+from spare_twin.validate import check_whole
 
 SEED = 12345  # the benchmark's sequences: the same objects in every column
 COLUMNS = ("raw", "local", "ray", "ray_workers_write")
@@ -57,11 +58,11 @@ class DatasetBench:
 
     def __post_init__(self) -> None:
         for name in ("instances", "frames", "rounds"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
-                raise SpareTwinError(f"{name} {v}: must be a whole number, at least 1")
-        if not self.workers or any(isinstance(w, bool) or not isinstance(w, int) or w < 1 for w in self.workers):
-            raise SpareTwinError(f"workers {list(self.workers)}: must be whole numbers, at least 1")
+            check_whole(name, getattr(self, name))
+        if not self.workers:
+            raise SpareTwinError("workers []: give at least one worker count")
+        for w in self.workers:
+            check_whole("workers", w)
         if self.paper not in ("extrapolate", "full"):
             raise SpareTwinError(f"paper {self.paper!r}: choose extrapolate or full")
 

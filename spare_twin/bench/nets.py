@@ -16,6 +16,7 @@ from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.models import model_inputs
 from spare_twin.nets.presets import NetConfig, get_preset
 from spare_twin.nets.registry import architecture, build_model
+from spare_twin.validate import check_whole
 
 DEVICES = ("cpu", "cuda")
 
@@ -25,11 +26,6 @@ def example_batch(net: NetConfig, batch_size: int, seed: int = 0) -> dict:
     spec = SyntheticSpec(mode=net.mode, input=net.input, frames=net.frames, seed=seed)
     s = make_sample(spec, "bench", 0)
     return {k: torch.as_tensor(np.repeat(np.asarray(v)[None], batch_size, 0)) for k, v in s.items()}
-
-
-def _whole(name: str, value, least: int) -> None:
-    if not isinstance(value, int) or isinstance(value, bool) or value < least:
-        raise SpareTwinError(f"{name} {value!r}: must be a whole number, at least {least}")
 
 
 @torch.no_grad()
@@ -47,11 +43,11 @@ def bench_inference(
     if not batch_sizes:
         raise SpareTwinError("batch_sizes: none given")
     for bs in batch_sizes:
-        _whole("batch_sizes", bs, 1)
-    _whole("warmup", warmup, 0)
-    _whole("iters", iters, 1)
+        check_whole("batch_sizes", bs, 1)
+    check_whole("warmup", warmup, 0)
+    check_whole("iters", iters, 1)
     if threads is not None:
-        _whole("threads", threads, 0)  # 0: torch's default, as in TrainConfig
+        check_whole("threads", threads, 0)  # 0: torch's default, as in TrainConfig
     if device not in DEVICES:
         raise SpareTwinError(f"device {device!r}: choose {' or '.join(DEVICES)}")
     if device == "cuda" and not torch.cuda.is_available():

@@ -16,6 +16,7 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import build_object
 from spare_twin.object.parts import build_parts
 from spare_twin.object.stl import to_trimesh
+from spare_twin.validate import check_whole
 
 
 @dataclass(frozen=True)
@@ -35,8 +36,7 @@ class ObjectBench:
 
 def bench_object(repeats: int = 5) -> ObjectBench:
     """Time `repeats` 6-link objects (seeds 0..repeats-1) three ways, and a bare interpreter start."""
-    if not isinstance(repeats, int) or isinstance(repeats, bool) or repeats < 1:
-        raise SpareTwinError(f"repeats {repeats!r}: must be a whole number, at least 1")
+    check_whole("repeats", repeats)
     geometry, folder, cli = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
         for seed in range(repeats):

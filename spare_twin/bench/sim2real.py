@@ -38,10 +38,10 @@ from spare_twin.bench.scoring import COMBINED, bench_markdown, bench_table, writ
 from spare_twin.bench.settings import BenchConfig, CaptureSettings, capture_settings
 from spare_twin.compare.answers import Model, answers_of, model_of, resolve_models, score_answers
 from spare_twin.dataset.backends import start_pool
-from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.output import writing
+from spare_twin.validate import check_whole
 
 #: Output kind (`spare_twin.output`) of a whole bench folder.
 BENCH = "bench sim2real"
@@ -174,8 +174,7 @@ def bench_sim2real(
     the next one, which keeps every finished object whose settings and models (by content) are the
     same; `force` replaces a folder that is not an earlier bench."""
     settings = capture_settings(cfg)  # validates cfg before anything is loaded or written
-    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
-        raise SpareTwinError(f"workers {workers!r}: must be a whole number, at least 1")
+    check_whole("workers", workers)
     combined_model = model_of(COMBINED, ckpt.default_model("predict"))
     nets = resolve_models(models, cfg.frames[0])
     with writing(out, BENCH, (combined_model.path, *(m.path for m in nets)), force, resumable=True) as tmp:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 
 from spare_twin.errors import SpareTwinError
+from spare_twin.validate import check_whole
 
 
 def _shown(value) -> str:
@@ -33,5 +34,4 @@ def fraction(name: str, value) -> None:
 
 def whole(name: str, value, minimum: int) -> None:
     """`value` is an int (not a bool) of at least `minimum`."""
-    if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
-        raise SpareTwinError(f"{name} {_shown(value)}: must be a whole number of at least {minimum}")
+    check_whole(name, value, minimum)

@@ -56,6 +56,19 @@ def _frame_number(p: Path, pattern: re.Pattern) -> int | None:
     return int(m.group(1)) if m else None
 
 
+def _check_pairs(colors: dict, depths: dict, depth_path, colour_path=None) -> None:
+    """Every colour frame has its depth frame and every depth frame its colour frame (both {key: path});
+    else one line naming the file: `depth_path(key)` for a missing depth frame, and where the layout
+    names a depth frame's colour frame, `colour_path(key)` for an extra one."""
+    for k in sorted(colors):
+        if k not in depths:
+            raise SpareTwinError(f"{depth_path(k)}: missing (colour frame {colors[k].name} has no depth)")
+    for k in sorted(depths):
+        if k not in colors:
+            expected = f" {colour_path(k)}" if colour_path else ""
+            raise SpareTwinError(f"{depths[k]}: extra depth frame with no matching colour frame{expected}")
+
+
 def list_7scenes(src: Path) -> Source:
     color_re = re.compile(r"frame-(\d+)\.color\.(?:png|jpg)")
     depth_re = re.compile(r"frame-(\d+)\.depth\.png")
@@ -63,13 +76,7 @@ def list_7scenes(src: Path) -> Source:
     depths = {n: p for p in src.iterdir() if (n := _frame_number(p, depth_re)) is not None}
     if not colors and not depths:
         raise SpareTwinError(f"{src}: no frame-NNNNNN.color.png / .depth.png files (not a 7-Scenes layout?)")
-    for n in sorted(colors):
-        if n not in depths:
-            depth_name = colors[n].name.replace(".color.png", ".depth.png").replace(".color.jpg", ".depth.png")
-            raise SpareTwinError(f"{src / depth_name}: missing (colour frame {colors[n].name} has no depth)")
-    for n in sorted(depths):
-        if n not in colors:
-            raise SpareTwinError(f"{depths[n]}: extra depth frame with no matching colour frame")
+    _check_pairs(colors, depths, lambda n: src / re.sub(r"\.color\.(png|jpg)$", ".depth.png", colors[n].name))
     poses = {n: src / f"frame-{n:06d}.pose.txt" for n in colors}
     have = [n for n in sorted(colors) if poses[n].is_file()]
     if have and len(have) != len(colors):
@@ -186,12 +193,7 @@ def _list_tum_pairs(src: Path) -> Source:
     colors = {p.stem: p for p in src.glob("*.png") if not depth_re.fullmatch(p.name)}
     if not depths:
         raise SpareTwinError(f"{src}: no rgb.txt/depth.txt and no N.png + N_depth.png pairs (not a TUM layout?)")
-    for k in sorted(depths):
-        if k not in colors:
-            raise SpareTwinError(f"{depths[k]}: extra depth frame with no matching colour frame {src / (k + '.png')}")
-    for k in sorted(colors):
-        if k not in depths:
-            raise SpareTwinError(f"{src / (k + '_depth.png')}: missing (colour frame {colors[k].name} has no depth)")
+    _check_pairs(colors, depths, lambda k: src / f"{k}_depth.png", lambda k: src / f"{k}.png")
 
     def order(k: str):
         return (0, int(k), k) if k.isdigit() else (1, 0, k)
@@ -207,12 +209,7 @@ def list_open3d(src: Path) -> Source:
             raise SpareTwinError(f"{d}: missing (an Open3D recorder folder has color/ and depth/)")
     colors = {p.stem: p for p in cdir.iterdir() if p.suffix.lower() in (".jpg", ".jpeg", ".png")}
     depths = {p.stem: p for p in ddir.iterdir() if p.suffix.lower() == ".png"}
-    for k in sorted(colors):
-        if k not in depths:
-            raise SpareTwinError(f"{ddir / (k + '.png')}: missing (colour frame {colors[k].name} has no depth)")
-    for k in sorted(depths):
-        if k not in colors:
-            raise SpareTwinError(f"{depths[k]}: extra depth frame with no matching colour frame")
+    _check_pairs(colors, depths, lambda k: ddir / f"{k}.png")
     if not colors:
         raise SpareTwinError(f"{cdir}: no frames")
     K, depth_scale, fps, model = None, MM_DEPTH_SCALE, None, "Intel RealSense (Open3D recorder)"

@@ -61,12 +61,24 @@ def register(sub) -> None:
     )
     bsub = p.add_subparsers(dest="benchmark", metavar="BENCHMARK")
     p.set_defaults(func=lambda args: (p.print_help(), 2)[1])
-    for add in (_add_dataset, _add_capture, _add_live, _add_nets, _add_object, _add_sim2real, _add_training):
-        add(bsub)
+    for name, help_text, description, add_flags, run in BENCHMARKS:
+        b = bsub.add_parser(name, help=help_text, description=description)
+        add_flags(b)
+        b.set_defaults(func=run)
 
 
 def _json_flag(p) -> None:
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+
+def _report(args: argparse.Namespace, figures, text: str) -> int:
+    """--json: `figures` as one JSON object on stdout; else `text` (whole lines)."""
+    print(json.dumps(figures) if args.json else text, end="\n" if args.json else "")
+    return 0
+
+
+def _lines(lines) -> str:
+    return "".join(f"{line}\n" for line in lines)
 
 
 def _log(args: argparse.Namespace):
@@ -75,7 +87,7 @@ def _log(args: argparse.Namespace):
 
 
 def _integers(text: str, flag: str, example: str, blanks_ok: bool = False) -> tuple[int, ...]:
-    """ "1,16" -> (1, 16); with blanks_ok, empty items are skipped ("" is no integers)."""
+    """Comma-separated integers, "1,16" -> (1, 16); with blanks_ok, empty items are skipped ("": none)."""
     try:
         return tuple(int(v) for v in text.split(",") if not blanks_ok or v.strip())
     except ValueError:
@@ -83,12 +95,7 @@ def _integers(text: str, flag: str, example: str, blanks_ok: bool = False) -> tu
 
 
 # -- bench dataset ---------------------------------------------------------------------------------
-def _add_dataset(bsub) -> None:
-    d = bsub.add_parser(
-        "dataset",
-        help="dataset generation: end-to-end images/s vs the raw pybullet render loop",
-        description=DATASET_DESCRIPTION,
-    )
+def _dataset_flags(d) -> None:
     d.add_argument("--instances", type=int, default=4, help="sequences per worker in every measured run (default: 4)")
     d.add_argument("--workers", default="1,2", help="worker counts to measure, comma-separated (default: 1,2)")
     d.add_argument("--frames", type=int, default=100, help="frames per sequence (default: 100)")
@@ -111,7 +118,6 @@ def _add_dataset(bsub) -> None:
         "time it; extrapolate (default): predict its wall time from the measured rate",
     )
     _json_flag(d)
-    d.set_defaults(func=bench_dataset)
 
 
 def bench_dataset(args: argparse.Namespace) -> int:
@@ -123,18 +129,11 @@ def bench_dataset(args: argparse.Namespace) -> int:
             args.instances, worker_counts, args.frames, args.geometry, args.rounds, not args.no_ray, args.paper
         )
         result = bench_dataset(b, log=_log(args))
-    if args.json:
-        print(json.dumps(result.to_json()))
-    return 0
+    return _report(args, result.to_json(), "")  # the text is the log, printed as it went
 
 
 # -- bench capture ---------------------------------------------------------------------------------
-def _add_capture(bsub) -> None:
-    p = bsub.add_parser(
-        "capture",
-        help="capture: registration accuracy/time on real RealSense frames, import and fusion frames/s",
-        description=CAPTURE_DESCRIPTION,
-    )
+def _capture_flags(p) -> None:
     p.add_argument(
         "--data",
         default=None,
@@ -145,7 +144,6 @@ def _add_capture(bsub) -> None:
     p.add_argument("--loop-gaps", default="2", help="registration loop-edge gaps (default 2, the library's)")
     p.add_argument("--voxel", type=float, default=0.004, help="ICP voxel size, metres (default 0.004)")
     _json_flag(p)
-    p.set_defaults(func=bench_capture)
 
 
 def bench_capture(args: argparse.Namespace) -> int:
@@ -166,31 +164,23 @@ def bench_capture(args: argparse.Namespace) -> int:
             max_frames=args.max_frames,
             progress=not args.json or sys.stderr.isatty(),
         )
-    if args.json:
-        print(json.dumps(r))
-        return 0
-    print(f"APC shelf, {r['frames']} frames, reference poses withheld")
+    lines = [f"APC shelf, {r['frames']} frames, reference poses withheld"]
     for g, row in r["errors"].items():
         rd, tm = row["rotation_deg"], row["translation_mm"]
-        print(
+        lines.append(
             f"  gap {g:>3}: rotation mean {rd['mean']:.2f} max {rd['max']:.2f} deg | translation mean {tm['mean']:.1f} "
             f"max {tm['max']:.1f} mm ({row['pairs']} pairs){'' if row['within_goal'] else '  OVER GOAL'}"
         )
     met = "met" if r["goal"]["met"] else "NOT met"
-    print(
+    lines.append(
         f"  import {r['import_frames_per_s']:.1f} frames/s, registration {r['registration_s']:.1f} s, "
         f"fusion {r['fusion_frames_per_s']:.1f} frames/s; goal (2 deg, 20 mm) {met}"
     )
-    return 0
+    return _report(args, r, _lines(lines))
 
 
 # -- bench live ------------------------------------------------------------------------------------
-def _add_live(bsub) -> None:
-    p = bsub.add_parser(
-        "live",
-        help="live's latency and memory on a 640x480 30 fps sweep replayed in real time",
-        description=LIVE_DESCRIPTION,
-    )
+def _live_flags(p) -> None:
     p.add_argument("--frames", type=int, default=300, help="frames of the rendered sweep (default: 300, 10 s)")
     p.add_argument("--resolution", default="640x480", help="WxH of the rendered sweep (default: 640x480)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate of the rendered sweep (default: 30)")
@@ -198,7 +188,6 @@ def _add_live(bsub) -> None:
     p.add_argument("--rec", metavar="REC_DIR", help="replay this recording instead of rendering one")
     p.add_argument("--rrd", metavar="OUT.rrd", help="also save the live view (replaces OUT.rrd)")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
-    p.set_defaults(func=bench_live)
 
 
 def bench_live(args: argparse.Namespace) -> int:
@@ -207,21 +196,11 @@ def bench_live(args: argparse.Namespace) -> int:
     with flags(frames="--frames", resolution="--resolution", fps="--fps", speed="--speed", rec="--rec"):
         cfg = LiveBench(args.frames, args.resolution, args.fps, args.speed, args.rec, args.rrd)
         fig = bench_live(cfg, _log(args)).to_json()
-    _print_figures(args, fig)
-    return 0
-
-
-def _print_figures(args: argparse.Namespace, fig: dict) -> None:
-    if args.json:
-        print(json.dumps(fig))
-        return
-    for key, value in fig.items():
-        print(f"  {key}: {value}")
+    return _report(args, fig, _lines(f"  {key}: {value}" for key, value in fig.items()))
 
 
 # -- bench nets ------------------------------------------------------------------------------------
-def _add_nets(bsub) -> None:
-    p = bsub.add_parser("nets", help="network inference speed: samples/s and latency per sample")
+def _nets_flags(p) -> None:
     src = p.add_mutually_exclusive_group()
     src.add_argument("--model", metavar="CKPT", help="a checkpoint (default: the shipped predict model)")
     src.add_argument(
@@ -232,7 +211,6 @@ def _add_nets(bsub) -> None:
     p.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     _json_flag(p)
-    p.set_defaults(func=bench_nets)
 
 
 def bench_nets(args: argparse.Namespace) -> int:
@@ -248,23 +226,18 @@ def bench_nets(args: argparse.Namespace) -> int:
         device="--device",
     ):
         res = bench_network(args.model, args.preset, sizes, args.iters, args.threads, args.device).to_json()
-    if args.json:
-        print(json.dumps(res))
-        return 0
-    for bs, r in res["batch_sizes"].items():
-        print(
-            f"{res['model']} batch {bs}: {r['samples_per_s']:.1f} samples/s, {r['latency_ms_per_sample']:.1f} "
-            f"ms/sample ({res['threads']} threads, {res['device']})"
-        )
-    return 0
+    lines = (
+        f"{res['model']} batch {bs}: {r['samples_per_s']:.1f} samples/s, {r['latency_ms_per_sample']:.1f} "
+        f"ms/sample ({res['threads']} threads, {res['device']})"
+        for bs, r in res["batch_sizes"].items()
+    )
+    return _report(args, res, _lines(lines))
 
 
 # -- bench object ----------------------------------------------------------------------------------
-def _add_object(bsub) -> None:
-    p = bsub.add_parser("object", help="time building 6-link objects (geometry only, and the whole CLI)")
+def _object_flags(p) -> None:
     p.add_argument("--repeats", type=int, default=5, help="objects per measurement (different seeds)")
     p.add_argument("--json", action="store_true", help="print the figures as one JSON object")
-    p.set_defaults(func=bench_object)
 
 
 def bench_object(args: argparse.Namespace) -> int:
@@ -272,26 +245,18 @@ def bench_object(args: argparse.Namespace) -> int:
 
     with flags(repeats="--repeats"):
         res = bench_object(args.repeats).to_json()
-    if args.json:
-        print(json.dumps(res))
-        return 0
-    print(f"6-link object, median of {res['objects']}:")
-    print(f"  geometry only (manifold3d parts -> meshes): {res['geometry_s']:.3f} s")
-    print(f"  object folder (STLs, checks, URDF, preview): {res['object_folder_s']:.3f} s")
-    print(
+    lines = [
+        f"6-link object, median of {res['objects']}:",
+        f"  geometry only (manifold3d parts -> meshes): {res['geometry_s']:.3f} s",
+        f"  object folder (STLs, checks, URDF, preview): {res['object_folder_s']:.3f} s",
         f"  whole CLI (new process):                     {res['whole_cli_s']:.3f} s "
-        f"= {res['cli_over_geometry']:.1f} x geometry (python start-up alone: {res['python_startup_s']:.3f} s)"
-    )
-    return 0
+        f"= {res['cli_over_geometry']:.1f} x geometry (python start-up alone: {res['python_startup_s']:.3f} s)",
+    ]
+    return _report(args, res, _lines(lines))
 
 
 # -- bench sim2real --------------------------------------------------------------------------------
-def _add_sim2real(bsub) -> None:
-    p = bsub.add_parser(
-        "sim2real",
-        help="sim-to-real table: predict, the measurement and each network alone on captures with every effect",
-        description=SIM2REAL_DESCRIPTION,
-    )
+def _sim2real_flags(p) -> None:
     p.add_argument(
         "--out", required=True, metavar="DIR", help="folder for the objects, captures and sim2real.{json,md,png}"
     )
@@ -336,7 +301,6 @@ def _add_sim2real(bsub) -> None:
     )
     p.add_argument("--force", action="store_true", help="replace --out even if it is not an earlier sim2real bench")
     p.add_argument("--json", action="store_true", help="print the whole table as one JSON object")
-    p.set_defaults(func=bench_sim2real)
 
 
 def _range(text: str, flag: str, kind) -> tuple:
@@ -392,21 +356,11 @@ def bench_sim2real(args: argparse.Namespace) -> int:
         force="--force",
     ):
         table, files = run_bench(args.out, cfg, models, args.workers, force=args.force)
-    if args.json:
-        print(json.dumps(table))
-    else:
-        print(bench_markdown(table), end="")
-        print(f"wrote {', '.join(files.values())}")
-    return 0
+    return _report(args, table, bench_markdown(table) + f"wrote {', '.join(files.values())}\n")
 
 
 # -- bench training --------------------------------------------------------------------------------
-def _add_training(bsub) -> None:
-    p = bsub.add_parser(
-        "training",
-        help="training speed: samples/s per preset under thread / worker / memory-layout settings",
-        description=TRAINING_DESCRIPTION,
-    )
+def _training_flags(p) -> None:
     p.add_argument("--data", metavar="DATA_DIR", required=True, help="a spare-twin dataset (its train split)")
     p.add_argument(
         "--presets",
@@ -419,7 +373,6 @@ def _add_training(bsub) -> None:
     )
     p.add_argument("--steps", type=int, default=10, help="timed training steps per preset and setting (default 10)")
     _json_flag(p)
-    p.set_defaults(func=bench_training)
 
 
 def _speed_settings(text: str) -> list:
@@ -448,11 +401,51 @@ def bench_training(args: argparse.Namespace) -> int:
     presets = [p for p in args.presets.split(",") if p] if args.presets else list(default_presets())
     with flags(data_dir="--data", presets="--presets", steps="--steps"):
         res = bench_training(presets, args.data, settings, args.steps, log=_log(args))
-    if args.json:
-        print(json.dumps({"settings": [s.label for s in settings], "presets": [r.to_json(settings) for r in res]}))
-        return 0
-    print(f"\nsamples/s ({', '.join(s.label for s in settings)}); ratio against the first")
+    figures = {"settings": [s.label for s in settings], "presets": [r.to_json(settings) for r in res]}
+    lines = ["", f"samples/s ({', '.join(s.label for s in settings)}); ratio against the first"]
     for r in res:
         cells = [f"{v:.1f} ({v / r.samples_per_s[0]:.2f}x)" for v in r.samples_per_s]
-        print(f"  {r.preset:<26} " + "  ".join(cells))
-    return 0
+        lines.append(f"  {r.preset:<26} " + "  ".join(cells))
+    return _report(args, figures, _lines(lines))
+
+
+#: Every benchmark, in `bench --help`'s order: (name, help, description, its flags, its handler).
+BENCHMARKS = (
+    (
+        "dataset",
+        "dataset generation: end-to-end images/s vs the raw pybullet render loop",
+        DATASET_DESCRIPTION,
+        _dataset_flags,
+        bench_dataset,
+    ),
+    (
+        "capture",
+        "capture: registration accuracy/time on real RealSense frames, import and fusion frames/s",
+        CAPTURE_DESCRIPTION,
+        _capture_flags,
+        bench_capture,
+    ),
+    (
+        "live",
+        "live's latency and memory on a 640x480 30 fps sweep replayed in real time",
+        LIVE_DESCRIPTION,
+        _live_flags,
+        bench_live,
+    ),
+    ("nets", "network inference speed: samples/s and latency per sample", None, _nets_flags, bench_nets),
+    ("object", "time building 6-link objects (geometry only, and the whole CLI)", None, _object_flags, bench_object),
+    (
+        "sim2real",
+        "sim-to-real table: predict, the measurement and each network alone on captures with every effect",
+        SIM2REAL_DESCRIPTION,
+        _sim2real_flags,
+        bench_sim2real,
+    ),
+    (
+        "training",
+        "training speed: samples/s per preset under thread / worker / memory-layout settings",
+        TRAINING_DESCRIPTION,
+        _training_flags,
+        bench_training,
+    ),
+)
