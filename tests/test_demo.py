@@ -9,11 +9,15 @@ from pathlib import Path
 from spare_twin.compare.demo import ALIGNED_LABEL, REAL_LABEL
 from spare_twin.predict.run import predict_recording
 
+#: The README's first command, `spare-twin demo` with no arguments: its output goes to ./spare-twin-demo.
+#: tests/test_readme.py checks that this is the README's command, so the README test need not run it again.
+DEMO_ARGV = ["demo"]
+
 
 def test_demo_runs_end_to_end(tmp_path):
     exe = shutil.which("spare-twin") or str(Path(sys.executable).parent / "spare-twin")
-    out = tmp_path / "demo"
-    res = subprocess.run([exe, "demo", "--out", str(out)], capture_output=True, text=True, timeout=600, cwd=tmp_path)
+    out = tmp_path / "spare-twin-demo"
+    res = subprocess.run([exe, *DEMO_ARGV], capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert res.returncode == 0, res.stderr[-3000:]
     lines = res.stdout.splitlines()
     assert lines[0].startswith("spare-twin demo finished in")

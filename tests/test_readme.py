@@ -1,0 +1,163 @@
+"""README.md as a newcomer reads and runs it: short enough, every command in its code blocks run as
+written (in order, in an empty folder, so the walkthrough builds on itself), every command and flag it
+names in prose or tables a real one, and every relative link in it and in docs/ pointing somewhere."""
+
+import ast
+import json
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+README = REPO / "README.md"
+
+#: The README a newcomer reads in ten minutes (issue 30): 15 KB at most.
+MAX_README_BYTES = 15 * 1024
+
+#: How the README calls the console script: the set-up's virtual environment, seen from the repository root.
+SCRIPT = ".venv/bin/spare-twin"
+
+#: The first code block: the main job and the test suite, each after the set-up.
+SETUP = "bash scripts/setup.sh && "
+FIRST_BLOCK = [f"{SETUP}{SCRIPT} demo", f"{SETUP}.venv/bin/python -m pytest -q"]
+
+#: Shell syntax a README command line must not use: the test runs it as one argument list, without a shell.
+SHELL_SYNTAX = ("&&", "||", "|", ";", ">", "<", "$(", "`")
+
+#: A markdown link or image's target: [text](target) or ![alt](target).
+LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def fenced_blocks(text: str) -> list[list[str]]:
+    """The lines of each fenced code block, in order."""
+    blocks, current = [], None
+    for line in text.splitlines():
+        if line.startswith("```"):
+            if current is None:
+                current = []
+            else:
+                blocks.append(current)
+                current = None
+        elif current is not None:
+            current.append(line)
+    assert current is None, "README.md: a code block is not closed"
+    return blocks
+
+
+def prose(text: str) -> str:
+    """The text outside fenced code blocks (a '#' line in a code block is no heading)."""
+    kept, inside = [], False
+    for line in text.splitlines():
+        if line.startswith("```"):
+            inside = not inside
+        elif not inside:
+            kept.append(line)
+    return "\n".join(kept)
+
+
+def walkthrough(blocks: list[list[str]]) -> list[list[str]]:
+    """Every `spare-twin` command of the code blocks after the first, as an argument list after the
+    script: `$S ARGS` (after `S=.venv/bin/spare-twin`), `.venv/bin/spare-twin ARGS` or `spare-twin ARGS`."""
+    commands, script_var = [], None
+    for block in blocks[1:]:
+        for line in block:
+            words = shlex.split(line, comments=True)
+            if not words:
+                continue
+            if words[0].startswith("S="):
+                assert words == [f"S={SCRIPT}"], line
+                script_var = SCRIPT
+                continue
+            head = SCRIPT if words[0] == "$S" and script_var else words[0]
+            if head not in (SCRIPT, "spare-twin"):
+                assert "spare-twin" not in line, f"README.md: a command line the test cannot run: {line}"
+                continue
+            assert not any(s in w for w in words for s in SHELL_SYNTAX), f"README.md: shell syntax in {line}"
+            commands.append(words[1:])
+    return commands
+
+
+def slug(heading: str) -> str:
+    """GitHub's anchor for a heading: lower case, punctuation dropped, spaces as hyphens."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def anchors(path: Path) -> set[str]:
+    return {slug(m.group(1)) for m in re.finditer(r"^#+ (.+)$", prose(path.read_text()), flags=re.M)}
+
+
+def test_readme_is_short():
+    size = len(README.read_bytes())
+    assert size <= MAX_README_BYTES, f"README.md is {size} bytes, more than {MAX_README_BYTES}"
+
+
+def test_first_block_is_the_demo_and_the_test_suite():
+    first = fenced_blocks(README.read_text())[0]
+    assert first == FIRST_BLOCK, first
+    # CI runs exactly the README's test command
+    ci = [ln for ln in (REPO / ".ci" / "run").read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+    assert ci[-1] == FIRST_BLOCK[1], ci
+    # The demo runs in test_demo.py, as the README gives it (no arguments), so it is not run here again.
+    tree = ast.parse((REPO / "tests" / "test_demo.py").read_text())
+    demo_argv = next(
+        ast.literal_eval(node.value)
+        for node in tree.body
+        if isinstance(node, ast.Assign) and any(getattr(t, "id", None) == "DEMO_ARGV" for t in node.targets)
+    )
+    assert FIRST_BLOCK[0] == f"{SETUP}{SCRIPT} " + " ".join(demo_argv)
+
+
+def test_every_relative_link_resolves():
+    pages = [README, *sorted((REPO / "docs").glob("*.md")), REPO / "CHANGELOG.md"]
+    broken = []
+    for page in pages:
+        for target in LINK.findall(prose(page.read_text())):
+            if re.match(r"[a-z]+:", target):  # https:, mailto: ...
+                continue
+            path_part, _, anchor = target.partition("#")
+            dest = (page.parent / path_part).resolve() if path_part else page
+            if not dest.exists():
+                broken.append(f"{page.relative_to(REPO)}: {target}")
+            elif anchor and dest.suffix == ".md" and anchor not in anchors(dest):
+                broken.append(f"{page.relative_to(REPO)}: {target} (no such heading)")
+    assert not broken, broken
+
+
+def test_commands_named_in_the_text_exist():
+    """Every `spare-twin SUB ...` in the README's prose and tables names a real subcommand, and each of
+    its --flags is one that subcommand takes (placeholders such as OBJ or N are not checked)."""
+    from spare_twin.cli import build_parser
+
+    spans = re.findall(r"`(spare-twin [^`]+)`", prose(README.read_text()))
+    assert len(spans) >= 10, spans
+    for span in spans:
+        parser = build_parser()
+        words = span.replace("\\|", "|").split()[1:]
+        while words and parser._subparsers is not None:
+            choices = parser._subparsers._group_actions[0].choices
+            if words[0] not in choices:
+                break
+            parser, words = choices[words[0]], words[1:]
+        assert parser.prog != "spare-twin", f"README.md: no such command: {span}"
+        known = {opt for action in parser._actions for opt in action.option_strings}
+        unknown = [w for w in words if w.startswith("--") and w.split("=")[0] not in known]
+        assert not unknown, f"README.md: {span}: {parser.prog} takes no {unknown}"
+
+
+def test_every_readme_command_runs(tmp_path):
+    """The walkthrough, command by command, as the README gives it: each must succeed, a --json one must
+    print one JSON object, and predict must count the links of the object the walkthrough built."""
+    commands = walkthrough(fenced_blocks(README.read_text()))
+    assert len(commands) >= 5, commands
+    exe = str(Path(sys.executable).parent / "spare-twin")
+    for argv in commands:
+        res = subprocess.run([exe, *argv], cwd=tmp_path, capture_output=True, text=True, timeout=240)
+        assert res.returncode == 0, (argv, res.stderr[-2000:])
+        if "--json" in argv:
+            answer = json.loads(res.stdout)
+            if argv[0] == "predict":
+                objects = [json.loads(p.read_text()) for p in tmp_path.glob("*/object.json")]
+                assert len(objects) == 1 and answer["n_links"] == objects[0]["n_links"], (argv, answer)
