@@ -181,3 +181,21 @@ def test_a_missing_parts_file_or_a_folder_without_an_object(tmp_path, capsys):
         lines = stderr_lines(err)
         assert code == 1 and len(lines) == 1 and lines[0].startswith("spare-twin predict: error: --parts ")
         assert why in lines[0] and str(path) in lines[0]
+
+
+def test_live_passes_the_parts_to_predict(eight_mm, tmp_path, capsys):
+    """`live --parts`: a bad file is the same one line; the estimator `live` loads measures with the
+    parts given, up to its final answer (`predict` on the recording it wrote)."""
+    from spare_twin.live.estimate import final_estimate, load_estimator
+
+    _, _, rec, _ = eight_mm
+    bad = tmp_path / "parts.json"
+    bad.write_text('{"link_thickness": 8}')
+    argv = ["live", "--replay", str(rec), "--no-viewer", "--parts", str(bad), "--out", str(tmp_path / "out")]
+    code, _, err = run_cli(argv, capsys)
+    lines = stderr_lines(err)
+    assert code == 1 and len(lines) == 1 and lines[0].startswith(f"spare-twin live: error: --parts {bad}: unknown key")
+    assert not (tmp_path / "out").exists()
+    parts = PartDims(link_thickness_mm=THICKNESS_MM)
+    final = final_estimate(load_estimator(None, "measurement", 0.08, parts), rec)
+    assert final.parts == parts and final.n_links == N_LINKS

@@ -54,12 +54,15 @@ def register(sub) -> None:
     )
     p.add_argument("--model", metavar="CKPT", help="profile network checkpoint (default: predict's)")
     p.add_argument("--print-scale", type=float, default=0.08, help="physical metres per paper metre (default 0.08)")
+    p.add_argument("--parts", metavar="FILE", help="the part dimensions the chain was printed with, as predict's "
+                   "--parts (default: the default parts)")  # fmt: skip
     p.set_defaults(func=run)
 
 
 def run(args) -> int:
     from spare_twin.commands.common import flags
     from spare_twin.live.run import live
+    from spare_twin.predict.parts import read_parts
 
     out_lines = []
 
@@ -90,7 +93,9 @@ def run(args) -> int:
         rrd="--rrd",
         connect="--connect",
         object_dir="--object",
+        parts="--parts",
     ):
+        parts = read_parts(args.parts) if args.parts is not None else None
         res = live(
             args.out,
             replay=args.replay,
@@ -107,6 +112,7 @@ def run(args) -> int:
             answer=args.answer,
             model=args.model,
             print_scale=args.print_scale,
+            parts=parts,
             on_update=on_update,
             say=lambda line: print(line, file=sys.stderr, flush=True),
             force=args.force,

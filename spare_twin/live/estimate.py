@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.config import PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.live.track import PlacedFrame
 from spare_twin.live.worker import MeasureProcess, measure_arrays, view_arrays
@@ -41,16 +42,21 @@ class Estimator:
     model_name: str | None
     answer: str
     print_scale: float
+    parts: PartDims = PartDims()
+    """The parts the chain was printed with (`predict --parts`)."""
 
 
-def load_estimator(model_path: str | Path | None, answer: str, print_scale: float) -> Estimator:
+def load_estimator(
+    model_path: str | Path | None, answer: str, print_scale: float, parts: PartDims | None = None
+) -> Estimator:
     """The network `predict` would load (its default profile network unless `model_path`); only a
     profile network reads posed views in memory, so another one is refused."""
-    check_options(print_scale=print_scale, answer=answer)
+    check_options(print_scale=print_scale, answer=answer, parts=parts)
+    parts = parts or PartDims()
     if answer == "measurement":
         if model_path is not None:
             raise SpareTwinError("--model: --answer measurement runs no network")
-        return Estimator(None, None, None, answer, float(print_scale))
+        return Estimator(None, None, None, answer, float(print_scale), parts)
     import torch
 
     # one thread: live's own three threads keep the cores busy, and torch's intra-op threads fighting them
@@ -60,7 +66,7 @@ def load_estimator(model_path: str | Path | None, answer: str, print_scale: floa
     model, net, _ = ckpt.load_model(path, "cpu")
     if net.arch != "profile":
         raise SpareTwinError(f"--model {path}: live runs the yaw-free profile network; this is a {net.arch} network")
-    return Estimator(model, net, str(path), answer, float(print_scale))
+    return Estimator(model, net, str(path), answer, float(print_scale), parts)
 
 
 def spread(kept: list[PlacedFrame], views: int) -> list[PlacedFrame]:
@@ -84,16 +90,18 @@ def estimate_and_arc(
     chain was seen)."""
     chosen = spread(kept, views)
     if process is not None:
-        obs, m = process.measure(chosen, len(kept), est.print_scale)
+        obs, m = process.measure(chosen, len(kept), est.print_scale, est.parts)
     else:
-        obs, m = measure_arrays(view_arrays(chosen), len(kept), est.print_scale)
-    pred = answer_of(obs, m, est.model, est.net, est.model_name, est.answer, est.print_scale)
+        obs, m = measure_arrays(view_arrays(chosen), len(kept), est.print_scale, est.parts)
+    pred = answer_of(obs, m, est.model, est.net, est.model_name, est.answer, est.print_scale, parts=est.parts)
     return pred, (None if obs.reason is not None else obs.arc_deg)
 
 
 def final_estimate(est: Estimator, rec_dir: str | Path) -> Prediction:
     """`predict` on the recording `live` wrote, with the same network and options."""
-    return predict_recording(rec_dir, est.model_name, print_scale=est.print_scale, progress=False, answer=est.answer)
+    return predict_recording(
+        rec_dir, est.model_name, print_scale=est.print_scale, progress=False, answer=est.answer, parts=est.parts
+    )
 
 
 def is_strong(pred: Prediction) -> bool:

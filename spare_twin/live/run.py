@@ -6,6 +6,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+from spare_twin.config import PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.live.estimate import load_estimator
 from spare_twin.live.rerun_view import LiveView
@@ -30,12 +31,14 @@ def live(
     answer: str = "combined",
     model: str | Path | None = None,
     print_scale: float = 0.08,
+    parts: PartDims | None = None,
     on_update: Callable[[Update], None] = lambda u: None,
     say: Callable[[str], None] = lambda line: None,
     force: bool = False,
 ) -> LiveResult:
     """`spare-twin live`; see `live.session`. The view goes to `rrd` (a file), `connect` (a running
-    viewer) or, with `viewer`, a spawned viewer; none without any of them."""
+    viewer) or, with `viewer`, a spawned viewer; none without any of them. `parts`: what the chain was
+    printed with (`predict --parts`)."""
     if rrd is not None and connect is not None:
         raise SpareTwinError("rrd, connect: give one place for the view, not both")
     cfg = LiveConfig(update_s=update_s, stable_s=stable_s, until_stable=until_stable, views=views)
@@ -45,7 +48,7 @@ def live(
     source = open_source(replay, bag, speed)
     view = None
     try:
-        est = load_estimator(model, answer, print_scale)
+        est = load_estimator(model, answer, print_scale, parts)
         if rrd is not None or connect is not None or viewer:
             view = LiveView.open(rrd=rrd, connect=connect, object_dir=object_dir, force=force)
     except BaseException:

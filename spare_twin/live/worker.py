@@ -31,6 +31,7 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
+from spare_twin.config import PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.measure.chain import ON_OBJECT_SWEEP, measure_views
 from spare_twin.observe.on_object import register_on_object
@@ -48,15 +49,15 @@ def view_arrays(frames) -> list[tuple]:
     return [(p.frame.depth_u16, float(p.frame.depth_scale), p.frame.K, p.T_world_camera, p.frame.color) for p in frames]
 
 
-def measure_arrays(views: list[tuple], frames_in_recording: int, print_scale: float):
+def measure_arrays(views: list[tuple], frames_in_recording: int, print_scale: float, parts: PartDims = PartDims()):
     """(observation, measurement) of views given as `view_arrays`: brought into register on the object,
-    then observed and measured as `predict` does (`measure.chain.measure_views`)."""
+    then observed and measured as `predict` does (`measure.chain.measure_views`, with the printed `parts`)."""
     posed = [PosedView(d.astype(np.float32) * np.float32(s), K, T, rgb) for d, s, K, T, rgb in views]
     t0 = time.perf_counter()
     on_object = register_on_object(posed)
     seconds = time.perf_counter() - t0  # the update's "registration": the frames were placed as they came
     seen = PosedViews(tuple(on_object), ON_OBJECT_SWEEP, seconds, frames_in_recording=frames_in_recording)
-    return measure_views(seen, print_scale, min_arc_deg=MIN_ARC_DEG)
+    return measure_views(seen, print_scale, min_arc_deg=MIN_ARC_DEG, parts=parts)
 
 
 def _serve(requests: Connection, replies: Connection) -> None:
@@ -116,8 +117,8 @@ class MeasureProcess:
             raise RuntimeError(f"live: the estimate's process failed:\n{reply[1]}")
         return reply[1] if len(reply) > 1 else None
 
-    def measure(self, frames, frames_in_recording: int, print_scale: float):
-        self._requests.send((view_arrays(frames), frames_in_recording, print_scale))
+    def measure(self, frames, frames_in_recording: int, print_scale: float, parts: PartDims = PartDims()):
+        self._requests.send((view_arrays(frames), frames_in_recording, print_scale, parts))
         return self._reply()
 
     def close(self) -> None:
