@@ -29,6 +29,9 @@ SHELL_SYNTAX = ("&&", "||", "|", ";", ">", "<", "$(", "`")
 #: A markdown link or image's target: [text](target) or ![alt](target).
 LINK = re.compile(r"!?\[[^\]]*\]\(([^)\s]+)\)")
 
+#: A long option as it is written in the text.
+FLAG = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+
 
 def fenced_blocks(text: str) -> list[list[str]]:
     """The lines of each fenced code block, in order."""
@@ -126,25 +129,80 @@ def test_every_relative_link_resolves():
     assert not broken, broken
 
 
-def test_commands_named_in_the_text_exist():
-    """Every `spare-twin SUB ...` in the README's prose and tables names a real subcommand, and each of
-    its --flags is one that subcommand takes (placeholders such as OBJ or N are not checked)."""
+def command_parsers(span: str) -> list:
+    """The subcommand parsers a `spare-twin SUB ...` span names (`bench {a,b}`: both)."""
     from spare_twin.cli import build_parser
 
+    parser, words = build_parser(), span.split()[1:]
+    while words and parser._subparsers is not None:
+        choices = parser._subparsers._group_actions[0].choices
+        if words[0].startswith("{"):
+            names = words[0].strip("{}").split(",")
+            assert all(name in choices for name in names), f"no such command: {span}"
+            return [choices[name] for name in names]
+        if words[0] not in choices:
+            break
+        parser, words = choices[words[0]], words[1:]
+    assert parser.prog != "spare-twin", f"no such command: {span}"
+    return [parser]
+
+
+def unknown_flags(text: str, parsers: list) -> list[str]:
+    known = {opt for parser in parsers for action in parser._actions for opt in action.option_strings}
+    return [flag for flag in FLAG.findall(text) if flag not in known]
+
+
+def table_rows(page: Path) -> list[tuple[list, str]]:
+    """Each command table row: the parsers its first cell names, and the whole row."""
+    rows = []
+    for line in prose(page.read_text()).splitlines():
+        if not line.startswith("| `spare-twin "):
+            continue
+        first_cell = line.replace("\\|", "/").split("|")[1]
+        spans = [s for s in re.findall(r"`([^`]+)`", first_cell) if not s.startswith("--")]
+        top = spans[0].split()[1]  # `capture calibrate REC` beside `spare-twin capture board ...`
+        parsers = [
+            p
+            for s in spans
+            for p in command_parsers(s if s.startswith("spare-twin ") else f"spare-twin {s}")
+            if s.startswith(("spare-twin ", top))
+        ]
+        rows.append((parsers, line))
+    return rows
+
+
+def test_commands_named_in_the_text_exist():
+    """Every `spare-twin SUB ...` in the README's prose names a real subcommand, and each --flag in it
+    is one that subcommand takes (placeholders such as OBJ or N are not checked)."""
     spans = re.findall(r"`(spare-twin [^`]+)`", prose(README.read_text()))
     assert len(spans) >= 10, spans
     for span in spans:
-        parser = build_parser()
-        words = span.replace("\\|", "|").split()[1:]
-        while words and parser._subparsers is not None:
-            choices = parser._subparsers._group_actions[0].choices
-            if words[0] not in choices:
-                break
-            parser, words = choices[words[0]], words[1:]
-        assert parser.prog != "spare-twin", f"README.md: no such command: {span}"
-        known = {opt for action in parser._actions for opt in action.option_strings}
-        unknown = [w for w in words if w.startswith("--") and w.split("=")[0] not in known]
-        assert not unknown, f"README.md: {span}: {parser.prog} takes no {unknown}"
+        unknown = unknown_flags(span, command_parsers(span))
+        assert not unknown, f"README.md: {span}: no such flags {unknown}"
+
+
+def test_command_tables_are_real_and_complete():
+    """The command tables of the README and docs/commands.md: every flag of a row is one its command
+    takes, and docs/commands.md has a row for every command there is."""
+    from spare_twin.cli import build_parser
+
+    named = set()
+    for page in (README, REPO / "docs" / "commands.md"):
+        rows = table_rows(page)
+        assert len(rows) >= 12, (page, len(rows))
+        for parsers, row in rows:
+            unknown = unknown_flags(row, parsers)
+            assert not unknown, f"{page.name}: {row[:80]}: no such flags {unknown}"
+            if page.name == "commands.md":
+                named |= {parser.prog for parser in parsers}
+    every = set()
+    for name, sub in build_parser()._subparsers._group_actions[0].choices.items():
+        every.add(sub.prog)
+        if name != "bench" and sub._subparsers is not None:  # capture and noise: each subcommand a row
+            every |= {leaf.prog for leaf in sub._subparsers._group_actions[0].choices.values()}
+    named |= {prog.rsplit(" ", 1)[0] for prog in named}  # `capture import` names `capture` too
+    missing = every - named
+    assert not missing, f"docs/commands.md has no row for {sorted(missing)}"
 
 
 def test_every_readme_command_runs(tmp_path):
