@@ -30,8 +30,8 @@ from spare_twin.sim.rig import Rig
 FORMAT = "spare-twin-synthetic"
 RIG_NAME = "synthetic-ring8"
 LAYER_PITCH_M = PartDims().layer_pitch_mm / 1000.0
-LINK_RADIUS_M = 0.006
-KEEPOUT_M = 0.017  # foot + socket height: links stay above it
+LINK_RADIUS_M = PartDims().link_width_mm / 2000.0
+KEEPOUT_M = (PartDims().foot_thickness_mm + PartDims().socket_height_mm) / 1000.0  # links stay above it
 GREY_OF_COLOUR = [0.08, 0.95, 0.35, 0.6, 0.3, 0.45, 0.8, 0.2]  # luminance of the paper's 8 colours
 
 

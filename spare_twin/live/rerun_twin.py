@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.config import PartDims
+
 #: Scale of a hidden twin: far below a pixel (a zero scale would make a singular transform).
 HIDDEN_SCALE = 1e-6
 
@@ -62,7 +64,9 @@ class UrdfTwin:
         )
 
 
-def chain_points_m(link_lengths_pu, joint_angles_rad, print_scale: float, layer_m: float = 0.0064) -> np.ndarray:
+def chain_points_m(
+    link_lengths_pu, joint_angles_rad, print_scale: float, layer_m: float = PartDims().layer_pitch_mm / 1000.0
+) -> np.ndarray:
     """The chain's centre line in its base frame (x along the chain's plane, y along the joint axes,
     z up; metres): the base from the table to joint 1, then each link at its cumulative angle about
     +y, one layer (`layer_m`) further along y than its parent. (n + 2, 3) points."""

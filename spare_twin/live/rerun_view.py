@@ -166,7 +166,7 @@ class LiveView:
         T = p.T_world_profile
         if T is None:
             return
-        pts = chain_points_m(p.link_lengths_pu, p.joint_angles_rad, p.print_scale)
+        pts = chain_points_m(p.link_lengths_pu, p.joint_angles_rad, p.print_scale, p.parts.layer_pitch_mm / 1000.0)
         world = pts @ T[:3, :3].T + T[:3, 3]
         self.stream.log("world/chain", rr.LineStrips3D([world], colors=[[255, 40, 40]], radii=0.002))
         twin = self._twin_for(p, u.t_s)
