@@ -67,6 +67,12 @@ def test_the_recording_holds_every_frame_of_the_stream(replayed, sweep):
         assert np.array_equal(rec.depth_raw("cam0", f), src.depth_raw(src.cameras[0].name, f))
         assert np.array_equal(rec.color("cam0", f), src.color(src.cameras[0].name, f))
     assert rec.depth_scale == src.depth_scale and np.allclose(rec.cameras[0].K, src.cameras[0].K)
+    # a replay copies its files as they are (nothing decoded and encoded again): byte for byte, every frame
+    for kind in ("color", "depth"):
+        ours = sorted((out / "cameras" / "cam0" / kind).glob("*.png"))
+        theirs = sorted((sweep / "cameras" / src.cameras[0].name / kind).glob("*.png"))
+        assert len(ours) == len(theirs) == 16
+        assert all(a.read_bytes() == b.read_bytes() for a, b in zip(ours, theirs))
 
 
 def test_enough_needs_the_answer_held_with_strong_evidence():
@@ -91,6 +97,69 @@ def test_enough_needs_the_answer_held_with_strong_evidence():
     assert is_strong(ups[1].prediction) and not is_strong(ups[0].prediction)
     assert not is_strong(update(1.0, 2, a, rms_m=2 * STRONG_RMS_M).prediction)  # blurred: not strong
     assert enough_words(ups[-1]).startswith("enough: n = 2, lengths 1.500, 0.800, 0.700")
+
+
+def test_a_full_queue_drops_its_oldest_frame():
+    import queue
+
+    from spare_twin.live.session import _offer_newest, _Shared
+
+    q, sh = queue.Queue(maxsize=2), _Shared()
+    for f in range(5):
+        _offer_newest(q, f, sh)
+    assert [q.get_nowait(), q.get_nowait()] == [3, 4] and sh.dropped == 3  # the tracker takes the newest
+
+
+def test_no_update_while_the_frames_go_too_little_round_the_chain():
+    from spare_twin.live.session import ARC_MARGIN_DEG, _too_little_arc
+    from spare_twin.live.track import PlacedFrame
+    from spare_twin.predict.abstain import MIN_ARC_DEG
+
+    def frames(span_deg: float) -> list[PlacedFrame]:
+        out = []
+        for i, a in enumerate(np.radians(np.linspace(0.0, span_deg, 6))):
+            T = np.eye(4)
+            T[:3, 3] = [0.4 * np.cos(a), 0.4 * np.sin(a), 0.3]  # cameras round the axis at (0, 0)
+            out.append(PlacedFrame(i, i / 30, None, T))
+        return out
+
+    axis = np.eye(4)
+    assert _too_little_arc(frames(MIN_ARC_DEG - ARC_MARGIN_DEG - 10), 8, axis)
+    assert not _too_little_arc(frames(MIN_ARC_DEG - ARC_MARGIN_DEG + 1), 8, axis)
+    assert not _too_little_arc(frames(10), 8, None)  # no chain seen yet: the update runs and looks
+
+
+def test_the_estimate_process_answers_as_the_thread_and_ends_with_its_pipe(sweep):
+    """The measurement in its own process (`live.worker`) gives the very answer it gives in-thread; a
+    one-line error in it is one line here; it ends when the parent closes its pipe (as when it dies)."""
+    import threading
+
+    from spare_twin.errors import SpareTwinError
+    from spare_twin.live.estimate import estimate_from_frames, load_estimator
+    from spare_twin.live.sources import ReplaySource
+    from spare_twin.live.track import Tracker
+    from spare_twin.live.worker import MeasureProcess
+
+    src = ReplaySource(sweep, speed=0)
+    tracker = Tracker(src.info.K, src.info.depth_scale)
+    for f in src.frames(threading.Event()):
+        tracker.add(f)
+    est = load_estimator(None, "measurement", 0.08)
+    process = MeasureProcess()
+    try:
+        here = estimate_from_frames(est, tracker.kept, 8)
+        there = estimate_from_frames(est, tracker.kept, 8, process)
+        assert here.n_links == 2 and there.to_json() == here.to_json()
+        with pytest.raises(SpareTwinError, match="print_scale"):
+            process.measure(tracker.kept[:3], 3, -1.0)
+        assert estimate_from_frames(est, tracker.kept, 8, process).to_json() == here.to_json()  # still serving
+    finally:
+        process.close()
+    assert process._proc.returncode == 0
+    orphan = MeasureProcess()
+    orphan._requests.close()  # what the parent's death does to the pipe
+    assert orphan._proc.wait(timeout=30) == 0
+    orphan._replies.close()
 
 
 def test_enough_in_the_replay_agrees_with_the_final_answer(replayed):

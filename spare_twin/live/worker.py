@@ -52,6 +52,8 @@ def view_arrays(frames) -> list[tuple]:
 def measure_arrays(views: list[tuple], frames_in_recording: int, print_scale: float, parts: PartDims = PartDims()):
     """(observation, measurement) of views given as `view_arrays`: brought into register on the object,
     then observed and measured as `predict` does (`measure.chain.measure_views`, with the printed `parts`)."""
+    if not (isinstance(print_scale, float) and np.isfinite(print_scale) and print_scale > 0):
+        raise SpareTwinError(f"print_scale {print_scale!r}: must be a positive number (physical m per paper m)")
     posed = [PosedView(d.astype(np.float32) * np.float32(s), K, T, rgb) for d, s, K, T, rgb in views]
     t0 = time.perf_counter()
     on_object = register_on_object(posed)
