@@ -8,7 +8,9 @@ import math
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
+from spare_twin.measure import fit
 from spare_twin.measure.layers import LayersConfig, measure_layers, measure_profile
 from spare_twin.observe.chain import find_chain
 from spare_twin.observe.points import PosedView, object_points
@@ -218,3 +220,85 @@ def test_a_chain_blurred_by_views_out_of_register_is_not_measured(lengths, angle
     assert blurred.rms_m > 0.01 and "off the best chain" in blurred.reason
     sharp = with_ghost(3.0)
     assert sharp.n_links == len(angles) and sharp.reason is None
+
+
+def _fit_input(lengths, angles, noise_m=0.001, seed=6):
+    """(each layer's (M_k, 2) in-plane points above the socket, as `measure_layers` hands them to the
+    fit; the fit's x near the truth but off it)."""
+    cfg = LayersConfig()
+    p, _ = plates(lengths, angles, np.random.default_rng(seed), noise_m)
+    p = p[p[:, 2] > cfg.min_height_m]
+    layer = np.rint(p[:, 1] / PITCH_M).astype(np.int64)
+    layers = [p[layer == k][:, [0, 2]] for k in range(len(angles) + 1)]
+    x = np.concatenate([[0.001], np.asarray(lengths) * SCALE + 0.002, np.asarray(angles) + 0.05])
+    return layers, x, cfg
+
+
+def _residuals_layer_by_layer(x, layers, n, cfg):
+    """The fit's residuals as the measurement first computed them, one layer at a time (its own
+    KD-tree each): the reference for the vectorised `ChainResiduals.residuals`."""
+    hw, total = cfg.half_width_m, sum(len(p) for p in layers)
+    weight = np.sqrt(total / ((n + 1) * cfg.samples_per_link))
+    u = np.linspace(0.0, 1.0, cfg.samples_per_link)
+    starts, ends = fit.plate_segments(x, n, cfg)
+    outside, gaps = [], []
+    for k, p in enumerate(layers):
+        a, b = starts[k], ends[k]
+        if len(p):
+            outside.append(np.maximum(fit.distance_to_segment(p, a, b) - hw, 0.0))
+        along = (b - a) / max(np.linalg.norm(b - a), 1e-9)
+        lo = a if k == 0 else a - cfg.cap_reach * hw * along
+        samples = lo + u[:, None] * (b + cfg.cap_reach * hw * along - lo)
+        d = cKDTree(p).query(samples)[0] if len(p) else np.full(len(u), cfg.coverage_tolerance_m)
+        gaps.append(np.maximum(d - cfg.coverage_tolerance_m, 0.0))
+    free_ends = cfg.free_end_pull * np.sqrt(total) * x[[1, n + 1]]
+    return np.concatenate(outside + [weight * np.concatenate(gaps), free_ends])
+
+
+@pytest.mark.parametrize("hide", [None, 2])
+def test_the_fits_residuals_are_the_layer_by_layer_ones(hide):
+    """All layers at once (one KD-tree, layer k lifted to its own height) give the residuals one
+    layer at a time gave, also with a layer that holds no points (its plate then has no say)."""
+    lengths, angles = CHAINS[1]
+    layers, x, cfg = _fit_input(lengths, angles)
+    if hide is not None:
+        layers[hide] = np.zeros((0, 2))
+    chain = fit.ChainResiduals(layers, 3, cfg)
+    for dx in (0.0, 0.004, -0.01):
+        reference = _residuals_layer_by_layer(x + dx, layers, 3, cfg)
+        assert np.allclose(chain.residuals(x + dx), reference, rtol=0, atol=1e-12)
+        assert np.count_nonzero(reference) > len(reference) // 20  # the comparison compares something
+
+
+@pytest.mark.parametrize("lengths, angles", CHAINS)
+def test_the_fits_jacobian_is_the_residuals_derivative(lengths, angles):
+    """The closed-form Jacobian against central differences (1e-7 m or rad): every row agrees but
+    the few whose residual has a kink within the step (a point on its plate's outline, a sample
+    whose nearest point changes); every parameter moves some residual."""
+    layers, x, cfg = _fit_input(lengths, angles)
+    n = len(angles)
+    chain = fit.ChainResiduals(layers, n, cfg)
+    jac = chain.jacobian(x)
+    step = 1e-7
+    numeric = np.stack(
+        [(chain.residuals(x + step * e) - chain.residuals(x - step * e)) / (2 * step) for e in np.eye(len(x))], 1
+    )
+    assert jac.shape == numeric.shape == (len(chain.residuals(x)), 2 * n + 2)
+    agree = np.abs(jac - numeric).max(1) <= 1e-5 * np.abs(numeric).max()
+    assert agree.mean() > 0.99
+    assert (np.abs(jac).max(0) > 0).all()
+
+
+@pytest.mark.parametrize("lengths, angles", CHAINS)
+def test_the_fit_is_the_one_with_a_numeric_jacobian(lengths, angles, monkeypatch):
+    """Same chain as before the closed-form Jacobian (scipy's 2-point differences from the same two
+    starts), to 0.05 mm and 0.1 deg on a noisy chain: it is a speed-up, not another fit."""
+    layers, _, cfg = _fit_input(lengths, angles, noise_m=0.002)
+    n = len(angles)
+    x_closed, rms_closed = fit.fit_layers(layers, n, cfg)
+    least_squares = fit.least_squares
+    monkeypatch.setattr(fit, "least_squares", lambda fun, x0, jac, **kw: least_squares(fun, x0, **kw))
+    x_numeric, rms_numeric = fit.fit_layers(layers, n, cfg)
+    assert np.abs(x_closed[: n + 2] - x_numeric[: n + 2]).max() < 5e-5
+    assert np.degrees(np.abs(x_closed[n + 2 :] - x_numeric[n + 2 :])).max() < 0.1
+    assert abs(rms_closed - rms_numeric) < 5e-5

@@ -18,10 +18,11 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    to the nearest point of that layer beyond a point spacing. Both ends of a joint are held by the
    two plates meeting there, from opposite sides, so a length is measured, not guessed. Two starts,
    both read from the layers, the lower cost kept: each link's points' centroid lies half its length
-   from its joint (`_initial`), and link by link from the base, each turned to where its plate holds
-   its layer's points best (`_initial_sequential`). No network is needed, and folded chains do not
+   from its joint (`fit._initial`), and link by link from the base, each turned to where its plate holds
+   its layer's points best (`fit._initial_sequential`). No network is needed, and folded chains do not
    trap the fit. A weak pull on the two free ends (the base's top, the last link's tip) keeps the
    shortest chain that holds the points, where the coverage tolerance alone let them drift out.
+   The fit, its starts and its residuals' Jacobian (in closed form) are `measure.fit`.
 4. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
    to measure, and the measurement says why (a capture blurred by views out of register).
 
@@ -33,10 +34,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims
+from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments
 from spare_twin.observe.points import ObjectPoints
 from spare_twin.observe.profile import ChainProfile, parts_geometry_m
 
@@ -211,126 +212,6 @@ def count_links(labels: np.ndarray, cfg: LayersConfig) -> tuple[int | None, tupl
     return n, tuple(int(c) for c in counts)
 
 
-def _joints(lengths_m: np.ndarray, angles_rad: np.ndarray, s0_m: float) -> tuple[np.ndarray, np.ndarray]:
-    """(joints (n + 1, 2): joint 1 .. joint n and the last plate's far centre, directions (n, 2))."""
-    phi = np.cumsum(angles_rad)
-    directions = np.stack([np.sin(phi), np.cos(phi)], 1)
-    joint1 = np.array([s0_m, lengths_m[0]])
-    return joint1 + np.concatenate([[[0.0, 0.0]], np.cumsum(directions * lengths_m[1:, None], 0)]), directions
-
-
-def _segments(x: np.ndarray, n: int, cfg: LayersConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(starts, ends) (n + 1, 2) of the plates' centre lines, base first. The base link stands on the
-    axis from the table; the last link's centre line ends half a width before its tip."""
-    s0, lengths, angles = x[0], x[1 : n + 2], x[n + 2 :]
-    joints, directions = _joints(lengths, angles, s0)
-    starts = np.concatenate([[[s0, 0.0]], joints[:-1]])
-    ends = joints.copy()
-    ends[-1] = joints[-2] + directions[-1] * max(lengths[-1] - cfg.half_width_m, 1e-4)
-    return starts, ends
-
-
-def _distance_to_segment(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ab = b - a
-    u = np.clip(((p - a) @ ab) / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-    return np.linalg.norm(p - (a + u[:, None] * ab), axis=1)
-
-
-def _first_joint(base: np.ndarray, cfg: LayersConfig) -> np.ndarray:
-    """(2,) joint 1 where both starts put it: half a width below the top of the base's (M, 2) points."""
-    top = float(np.percentile(base[:, 1], 98)) - cfg.half_width_m if len(base) else 0.04
-    return np.array([0.0, max(top, 0.02)])
-
-
-def _initial(points: list[np.ndarray], n: int, cfg: LayersConfig) -> np.ndarray:
-    """Start of the fit, read from the layers: the base link's top, then per link its centroid, which
-    lies half the link's length from its joint (for the last link, half of length minus half a width)."""
-    hw = cfg.half_width_m
-    joint, phi_prev = _first_joint(points[0], cfg), 0.0
-    lengths, angles = [joint[1]], []
-    for k in range(1, n + 1):
-        p = points[k]
-        offset = p.mean(0) - joint if len(p) else np.array([0.0, 0.03])
-        phi = float(np.arctan2(offset[0], offset[1]))
-        length = 2 * float(np.linalg.norm(offset)) + (hw if k == n else 0.0)
-        length = max(length, 2 * hw)
-        lengths.append(length)
-        angles.append((phi - phi_prev + np.pi) % (2 * np.pi) - np.pi)
-        joint = joint + length * np.array([np.sin(phi), np.cos(phi)])
-        phi_prev = phi
-    return np.concatenate([[0.0], lengths, angles])
-
-
-def _initial_sequential(points: list[np.ndarray], n: int, cfg: LayersConfig) -> np.ndarray:
-    """A second start, link by link from the base: each link's direction is the one of `directions`
-    whose plate from its joint holds the layer's points best, its length their reach along it. Where
-    the first start's centroid misleads (a link's points bunched at one end, a fold that hides half a
-    link), this one follows the points' extent instead."""
-    hw = cfg.half_width_m
-    joint = _first_joint(points[0], cfg)
-    phis = np.linspace(-np.pi, np.pi, cfg.directions, endpoint=False)
-    axes = np.stack([np.sin(phis), np.cos(phis)], 1)
-    lengths, angles, phi_prev = [joint[1]], [], 0.0
-    for k in range(1, n + 1):
-        rel = points[k] - joint
-        if len(rel) == 0:
-            phi, reach = phi_prev, 2 * hw
-        else:
-            along = rel @ axes.T  # (M, directions)
-            across = np.abs(rel @ np.stack([axes[:, 1], -axes[:, 0]], 0))
-            reach_all = np.maximum(np.percentile(along, 98, axis=0), 2 * hw)
-            outside = np.maximum(np.hypot(along - np.clip(along, 0.0, reach_all), across) - hw, 0.0)
-            best = int(np.argmin(np.sum(outside**2, axis=0)))
-            phi, reach = float(phis[best]), float(reach_all[best])
-        # the points reach a middle link's rounded end, a half width past its far joint; the last's tip
-        length = reach if k == n else max(reach - hw, 2 * hw)
-        lengths.append(length)
-        angles.append((phi - phi_prev + np.pi) % (2 * np.pi) - np.pi)
-        joint = joint + (length - (hw if k == n else 0.0)) * np.array([np.sin(phi), np.cos(phi)])
-        phi_prev = phi
-    return np.concatenate([[0.0], lengths, angles])
-
-
-def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tuple[np.ndarray, float]:
-    """(x = [s0, L0..Ln, a1..an], rms) of the chain fitted to each layer's (M_k, 2) in-plane points."""
-    hw, tol = cfg.half_width_m, cfg.coverage_tolerance_m
-    trees = [cKDTree(p) if len(p) else None for p in points_sz_m]
-    total = sum(len(p) for p in points_sz_m)
-    weight = np.sqrt(total / ((n + 1) * cfg.samples_per_link))  # coverage weighs as much as the points
-    u = np.linspace(0.0, 1.0, cfg.samples_per_link)
-
-    def residuals(x):
-        starts, ends = _segments(x, n, cfg)
-        outside, gaps = [], []
-        for k, p in enumerate(points_sz_m):
-            a, b = starts[k], ends[k]
-            if len(p):
-                outside.append(np.maximum(_distance_to_segment(p, a, b) - hw, 0.0))
-            ab = b - a
-            along = ab / max(np.linalg.norm(ab), 1e-9)
-            # the plate's centre line out to its rounded ends (the base's foot end is in the socket)
-            lo = a if k == 0 else a - cfg.cap_reach * hw * along
-            hi = b + cfg.cap_reach * hw * along
-            samples = lo + u[:, None] * (hi - lo)
-            if trees[k] is None:
-                gaps.append(np.zeros(len(u)))
-                continue
-            d, _ = trees[k].query(samples)
-            gaps.append(np.maximum(d - tol, 0.0))
-        free_ends = cfg.free_end_pull * np.sqrt(total) * x[[1, n + 1]]
-        return np.concatenate(outside + [weight * np.concatenate(gaps), free_ends])
-
-    lo = np.concatenate([[-0.02], np.full(n + 1, 0.005), np.full(n, -np.inf)])
-    hi = np.concatenate([[0.02], np.full(n + 1, 0.5), np.full(n, np.inf)])
-    fits = [
-        least_squares(residuals, np.clip(x0, lo + 1e-9, hi - 1e-9), bounds=(lo, hi), loss="soft_l1", f_scale=0.003)
-        for x0 in (_initial(points_sz_m, n, cfg), _initial_sequential(points_sz_m, n, cfg))
-    ]
-    res = min(fits, key=lambda r: r.cost)  # the first on a tie
-    rms = float(np.sqrt(np.mean(res.fun[:total] ** 2))) if total else 0.0
-    return res.x, rms
-
-
 def _links_ahead(p: np.ndarray) -> np.ndarray:
     """(3,) +-1 factors that turn t so that the upper links lie at larger t than the base link's
     foot: for a chain whose sign the profile could not read (upright, no link leaving the base's
@@ -392,9 +273,9 @@ def _top_layer_is_stray(
     real link folded back onto a parent of its length lies on its outline too, centred on n."""
     if float(np.median(centres)) >= n - cfg.max_stray_offset:
         return False
-    starts, ends = _segments(x, n, cfg)
+    starts, ends = plate_segments(x, n, cfg)
     top = layers[n]
-    inside = _distance_to_segment(top, starts[n - 1], ends[n - 1]) <= cfg.half_width_m + cfg.coverage_tolerance_m
+    inside = distance_to_segment(top, starts[n - 1], ends[n - 1]) <= cfg.half_width_m + cfg.coverage_tolerance_m
     return bool(inside.mean() >= cfg.max_top_inside_parent)
 
 
