@@ -10,10 +10,13 @@ as in the STL files a slicer reads.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import math
 import numbers
+import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -42,6 +45,14 @@ COLORS: dict[str, tuple[float, float, float]] = {
 BASE_LENGTH_RANGE = (1.3, 2.0)
 LINK_LENGTH_RANGE = (0.3, 1.0)
 MAX_TOTAL_LENGTH = 3.0
+
+#: The key of the n + 1 paper-unit link lengths (base first) in every file and output.
+LENGTHS_KEY = "link_lengths_pu"
+#: DESIGN.md's object-folder contract, which outside checks read, names object.json's paper-unit lengths
+#: `link_lengths_m`, so object.json writes this key too, beside LENGTHS_KEY with the same values. The name is
+#: a misnomer (the values are paper units, not metres): readers use LENGTHS_KEY, and take this key alone only
+#: from a file written before 0.6.0, when every file and output named the lengths so (`with_paper_lengths`).
+DESIGN_CONTRACT_LENGTHS_KEY = "link_lengths_m"
 
 
 def _is_seed(seed) -> bool:
@@ -81,7 +92,7 @@ def _type_problems(d: dict) -> list[str]:
     if "n_links" in d and not (isinstance(n, numbers.Integral) and not isinstance(n, bool)):
         problems.append(f"n_links: must be a whole number, got {_shown(n)}")
     for key, ok, what in (
-        ("link_lengths_m", _is_number, "numbers"),
+        (LENGTHS_KEY, _is_number, "numbers"),
         ("colors", lambda c: isinstance(c, str), "colour names"),
     ):
         v = d.get(key)
@@ -175,8 +186,7 @@ class ChainSpec:
     printer: PrinterSpec = field(default_factory=PrinterSpec)
 
     def __post_init__(self) -> None:
-        fields = {"link_lengths_m" if f.name == "link_lengths_pu" else f.name: getattr(self, f.name)
-                  for f in dataclasses.fields(self)}  # fmt: skip
+        fields = {f.name: getattr(self, f.name) for f in dataclasses.fields(self)}
         problems = _type_problems(fields)
         for key, cls in (("parts", PartDims), ("printer", PrinterSpec)):
             if not isinstance(fields[key], cls):
@@ -210,9 +220,8 @@ class ChainSpec:
 
     # -- JSON round trip -----------------------------------------------------------------
     def to_dict(self) -> dict:
-        # object.json names the paper-unit lengths `link_lengths_m` (docs/design.md); the key keeps its place.
-        d = {("link_lengths_m" if k == "link_lengths_pu" else k): v for k, v in dataclasses.asdict(self).items()}
-        d["link_lengths_m"] = list(self.link_lengths_pu)
+        d = dataclasses.asdict(self)
+        d[LENGTHS_KEY] = list(self.link_lengths_pu)
         d["colors"] = list(self.colors)
         return d
 
@@ -221,14 +230,15 @@ class ChainSpec:
         """The spec a configuration describes; else one SpareTwinError naming `source` and every key at fault."""
         if not isinstance(d, dict):
             raise SpareTwinError(f"{source}: expected a JSON object")
-        known = {f.name for f in dataclasses.fields(cls)} - {"link_lengths_pu"} | {"link_lengths_m"}
+        d = with_paper_lengths(d, source)
+        known = {f.name for f in dataclasses.fields(cls)}
         problems = []
         unknown = sorted(_key(k) for k in set(d) - known - {"format", "derived"})
         if unknown:
             problems.append(f"unknown key(s) {', '.join(unknown)}")
-        problems += [f"{k}: missing" for k in ("n_links", "link_lengths_m", "colors") if k not in d]
+        problems += [f"{k}: missing" for k in ("n_links", LENGTHS_KEY, "colors") if k not in d]
         problems += _type_problems(d)
-        kwargs = {("link_lengths_pu" if k == "link_lengths_m" else k): v for k, v in d.items() if k in known}
+        kwargs = {k: v for k, v in d.items() if k in known}
         for key, sub in (("parts", PartDims), ("printer", PrinterSpec)):
             if key in kwargs:
                 kwargs[key], found = _sub(sub, kwargs[key], key)
@@ -247,6 +257,47 @@ class ChainSpec:
     @classmethod
     def from_json_file(cls, path: str | Path) -> ChainSpec:
         return cls.from_dict(read_json(path), source=str(path))
+
+
+_old_key_said = False  # the note on a file from before 0.6.0 is said once per process
+
+
+def with_paper_lengths(fields: Mapping, source: str) -> dict:
+    """`fields` (object.json, a configuration, ground_truth.npz's arrays, a recording's object, ...) as a
+    dict with the paper-unit lengths under LENGTHS_KEY only: the one reader of the key's older name.
+
+    A file from before 0.6.0 names them DESIGN_CONTRACT_LENGTHS_KEY alone: still read, and the first such
+    file a process reads says so in one line on stderr. object.json from 0.6.0 on holds both keys, which
+    must agree: an edit to one of them alone would otherwise be ignored without a word."""
+    global _old_key_said
+    out = dict(fields)
+    if DESIGN_CONTRACT_LENGTHS_KEY not in out:
+        return out
+    old = out.pop(DESIGN_CONTRACT_LENGTHS_KEY)
+    if LENGTHS_KEY in out:
+        if not _same_numbers(old, out[LENGTHS_KEY]):
+            raise SpareTwinError(
+                f"{source}: {DESIGN_CONTRACT_LENGTHS_KEY} and {LENGTHS_KEY} differ (the same paper-unit lengths "
+                f"under the old and the new name: edit {LENGTHS_KEY} and remove {DESIGN_CONTRACT_LENGTHS_KEY})"
+            )
+        return out
+    out[LENGTHS_KEY] = old
+    if not _old_key_said:
+        _old_key_said = True
+        with contextlib.suppress(OSError, ValueError):  # a closed stderr cannot make reading fail
+            print(
+                f"note: {source}: old key {DESIGN_CONTRACT_LENGTHS_KEY} read as {LENGTHS_KEY} (paper units)",
+                file=sys.stderr,
+                flush=True,
+            )
+    return out
+
+
+def _same_numbers(a, b) -> bool:
+    try:
+        return bool(np.array_equal(np.asarray(a, np.float64), np.asarray(b, np.float64)))
+    except (TypeError, ValueError, OverflowError):  # not numbers: the type check names the key at fault
+        return repr(a) == repr(b)
 
 
 def _key(k) -> str:
@@ -284,10 +335,10 @@ def _value_problems(spec: ChainSpec) -> list[str]:
     if not MIN_MOVING_LINKS <= n <= MAX_MOVING_LINKS:
         bad("n_links", f"{n} is out of range {MIN_MOVING_LINKS}..{MAX_MOVING_LINKS}")
     elif len(spec.link_lengths_pu) != n + 1:
-        bad("link_lengths_m", f"needs n_links + 1 = {n + 1} values (base first), got {len(spec.link_lengths_pu)}")
+        bad(LENGTHS_KEY, f"needs n_links + 1 = {n + 1} values (base first), got {len(spec.link_lengths_pu)}")
     for i, length in enumerate(spec.link_lengths_pu):
         if not math.isfinite(length) or length <= 0:
-            bad("link_lengths_m", f"link {i} length {length} must be positive")
+            bad(LENGTHS_KEY, f"link {i} length {length} must be positive")
             break
     if MIN_MOVING_LINKS <= n <= MAX_MOVING_LINKS and len(spec.colors) != n + 1:
         bad("colors", f"needs n_links + 1 = {n + 1} colour names, got {len(spec.colors)}")
@@ -339,19 +390,19 @@ def _value_problems(spec: ChainSpec) -> list[str]:
     for i, length_mm in enumerate(lengths_mm[1:-1], start=1):
         if length_mm < min_between_axes_mm:
             bad(
-                "link_lengths_m",
+                LENGTHS_KEY,
                 f"link {i} is {length_mm:.1f} mm between axes at this print_scale, "
                 f"below the {min_between_axes_mm:.1f} mm its joints need",
             )
             break
     if lengths_mm[-1] < p.link_width_mm / 2:
         bad(
-            "link_lengths_m",
+            LENGTHS_KEY,
             f"the last link ({lengths_mm[-1]:.1f} mm) is shorter than half the link width at this print_scale",
         )
     if lengths_mm[0] < p.foot_thickness_mm + p.socket_height_mm + p.link_width_mm:
         bad(
-            "link_lengths_m",
+            LENGTHS_KEY,
             f"the base ({lengths_mm[0]:.1f} mm) is too short to stand in its foot socket at this print_scale",
         )
     # Longest printed part: a link plate lying flat (its length plus the rounded ends).

@@ -131,7 +131,7 @@ class W:
         return name
 
     def chain(self, **changes) -> str:
-        spec = {"n_links": 2, "link_lengths_m": [1.5, 0.6, 0.5], "colors": ["red", "blue", "green"]}
+        spec = {"n_links": 2, "link_lengths_pu": [1.5, 0.6, 0.5], "colors": ["red", "blue", "green"]}
         for k, v in changes.items():
             if v is ...:
                 spec.pop(k)
@@ -224,14 +224,14 @@ CASES = [
     C("object-bed-garbage", "object --links 2 --bed big --out o", "--bed"),
     C("object-bed-negative", "object --links 2 --bed -200x200 --out o", "--bed"),
     C("object-name-with-slash", "object --links 2 --name a/b --out o", "--name"),
-    C("object-config-lengths-string", "object --config spec.json --out o", "link_lengths_m",
-      chain(link_lengths_m="long")),
+    C("object-config-lengths-string", "object --config spec.json --out o", "link_lengths_pu",
+      chain(link_lengths_pu="long")),
     C("object-config-n-links-string", "object --config spec.json --out o", "n_links", chain(n_links="three")),
-    C("object-config-no-colors-and-bad-lengths", "object --config spec.json --out o", "colors&link_lengths_m",
-      chain(colors=..., link_lengths_m="long")),
+    C("object-config-no-colors-and-bad-lengths", "object --config spec.json --out o", "colors&link_lengths_pu",
+      chain(colors=..., link_lengths_pu="long")),
     C("object-config-colors-string", "object --config spec.json --out o", "colors", chain(colors="red")),
-    C("object-config-lengths-null", "object --config spec.json --out o", "link_lengths_m",
-      chain(link_lengths_m=None)),
+    C("object-config-lengths-null", "object --config spec.json --out o", "link_lengths_pu",
+      chain(link_lengths_pu=None)),
     C("object-config-n-links-fraction", "object --config spec.json --out o", "n_links", chain(n_links=2.5)),
     C("object-config-n-links-bool", "object --config spec.json --out o", "n_links", chain(n_links=True)),
     C("object-config-seed-negative", "object --config spec.json --out o", "seed", chain(seed=-3)),

@@ -57,26 +57,26 @@ def test_label_has_seven_slots():
 @pytest.mark.parametrize(
     "change, message",
     [
-        (dict(n_links=0, link_lengths_m=[1.5], colors=["red"]), "n_links: 0 is out of range"),
+        (dict(n_links=0, link_lengths_pu=[1.5], colors=["red"]), "n_links: 0 is out of range"),
         (dict(n_links=7), "n_links: 7 is out of range"),
-        (dict(link_lengths_m=[1.5, 0.0]), "link 1 length 0.0 must be positive"),
-        (dict(link_lengths_m=[1.5, -0.4]), "must be positive"),
+        (dict(link_lengths_pu=[1.5, 0.0]), "link 1 length 0.0 must be positive"),
+        (dict(link_lengths_pu=[1.5, -0.4]), "must be positive"),
         (dict(colors=["red", "pink"]), "unknown colour 'pink'"),
         (dict(parts={"pin_clearance_mm": 0.02}), "cannot print as a turning joint"),
         (dict(parts={"pin_clearance_mm": 2.5}), "cannot print as a turning joint"),
         (dict(print_scale=0.3), "does not fit"),
         (dict(printer={"bed_x_mm": 90, "bed_y_mm": 90}), "does not fit"),
         (dict(parts={"link_width_mm": 7.5}), "minimum wall"),
-        (dict(link_lengths_m=[1.5, 0.5], colors=["red"]), "colors: needs n_links + 1 = 2"),
+        (dict(link_lengths_pu=[1.5, 0.5], colors=["red"]), "colors: needs n_links + 1 = 2"),
         (dict(printer={"bed_x_mm": -200}), "printer.bed_x_mm: -200.0 must be positive"),
         (dict(seed=-3), "seed: -3 must be a non-negative integer"),
     ],
 )
 def test_bad_configurations_are_rejected_with_one_line(change, message):
-    d = dict(n_links=1, link_lengths_m=[1.5, 0.5], colors=["red", "blue"])
+    d = dict(n_links=1, link_lengths_pu=[1.5, 0.5], colors=["red", "blue"])
     d.update(change)
     if d["n_links"] == 7:
-        d.update(link_lengths_m=[1.5] + [0.2] * 7, colors=["red"] * 8)
+        d.update(link_lengths_pu=[1.5] + [0.2] * 7, colors=["red"] * 8)
     with pytest.raises(SpareTwinError) as err:
         ChainSpec.from_dict(json.loads(json.dumps(d)))
     assert message in str(err.value)
@@ -85,7 +85,7 @@ def test_bad_configurations_are_rejected_with_one_line(change, message):
 
 def test_unknown_keys_are_rejected():
     with pytest.raises(SpareTwinError, match="unknown key"):
-        ChainSpec.from_dict(dict(n_links=1, link_lengths_m=[1.5, 0.5], colors=["red", "blue"], lenghts=[1]))
+        ChainSpec.from_dict(dict(n_links=1, link_lengths_pu=[1.5, 0.5], colors=["red", "blue"], lenghts=[1]))
 
 
 def test_sampling_rejects_a_negative_seed_naming_the_parameter():

@@ -120,7 +120,7 @@ def test_the_rendered_chain_is_measured(rig_rec):
     """The 2-link object in the training rig at the network's 96 x 128: count, lengths (the object
     folder's, paper units) and joint angles (the simulation's, in the profile frame's sign)."""
     spec = rig_rec.object_config
-    truth_lengths = np.asarray(spec["link_lengths_m"], float)
+    truth_lengths = np.asarray(spec["link_lengths_pu"], float)
     gt = rig_rec.ground_truth()
     for frame in range(rig_rec.n_frames):
         seen = observe_chain(rig_rec, SCALE, frame=frame)
@@ -153,7 +153,7 @@ def test_a_box_bigger_than_the_chain_is_passed_over(rig_rec):
     assert np.median(biggest.points_m[:, 2]) > 0.03 and np.ptp(biggest.points_m[:, 1]) > 0.1  # the box
     obj, profile = find_chain(views, SCALE)
     assert profile.reason is None
-    assert measure_profile(obj, profile, SCALE).n_links == len(rig_rec.object_config["link_lengths_m"]) - 1
+    assert measure_profile(obj, profile, SCALE).n_links == len(rig_rec.object_config["link_lengths_pu"]) - 1
 
 
 def test_the_measurement_overrules_the_network_where_it_found_a_chain():

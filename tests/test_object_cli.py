@@ -18,7 +18,7 @@ def test_object_writes_everything_and_rebuilds_bit_for_bit(tmp_path, capsys):
     code, stdout, _ = run_cli(["object", "--links", "4", "--seed", "11", "--out", str(out), "--json"], capsys)
     assert code == 0
     summary = json.loads(stdout)
-    assert summary["n_links"] == 4 and len(summary["link_lengths_m"]) == 5
+    assert summary["n_links"] == 4 and len(summary["link_lengths_pu"]) == 5
     names = set(summary["files"])
     assert {
         "object.json",
@@ -33,7 +33,7 @@ def test_object_writes_everything_and_rebuilds_bit_for_bit(tmp_path, capsys):
         "foot.stl",
     } <= names
     meta = json.loads((out / "object.json").read_text())
-    assert meta["n_links"] == 4 and len(meta["link_lengths_m"]) == 5 and meta["print_scale"] == 0.08
+    assert meta["n_links"] == 4 and len(meta["link_lengths_pu"]) == 5 and meta["print_scale"] == 0.08
 
     # Same seed again, and from the written object.json: byte-identical folders.
     again = tmp_path / "again"
@@ -88,7 +88,7 @@ def test_bad_input_is_one_line_and_keeps_existing_output(tmp_path, capsys, argv,
 
 def test_bad_json_config_names_the_file(tmp_path, capsys):
     bad = tmp_path / "spec.json"
-    bad.write_text('{"n_links": 2, "link_lengths_m": [1.5, 0.5, 0.4], "colors": ["red", "mauve", "blue"]}')
+    bad.write_text('{"n_links": 2, "link_lengths_pu": [1.5, 0.5, 0.4], "colors": ["red", "mauve", "blue"]}')
     code, _, stderr = run_cli(["object", "--config", str(bad), "--out", str(tmp_path / "o")], capsys)
     assert code == 1 and "unknown colour 'mauve'" in stderr and str(bad) in stderr
     bad.write_text("{not json")

@@ -39,7 +39,7 @@ def test_object_points_are_the_chain_above_the_table(rig_rec):
     # the table is gone, the object stands on it, and nothing is farther than the chain reaches
     assert p[:, 2].min() >= 0.008 - 1e-9 and p[:, 2].min() < 0.02
     spec = rig_rec.object_config
-    total_m = sum(spec["link_lengths_m"]) * spec["print_scale"]
+    total_m = sum(spec["link_lengths_pu"]) * spec["print_scale"]
     assert p[:, 2].max() < total_m + 0.02
     # the sim world's table is z = 0: the fitted table frame is level with it
     assert abs(obj.T_world_table[2, 2]) > math.cos(math.radians(0.5))
@@ -168,7 +168,7 @@ def test_a_sweep_that_does_not_fuse_as_a_whole_is_measured_from_a_part(printed_o
     assert whole.reason is not None or measure_profile(whole.object, whole.profile, PRINT_SCALE).n_links is None
     seen, measured = measured_chain(rec, PRINT_SCALE)
     assert measured.n_links == 2 and measured.reason is None
-    truth_pu = np.asarray(rec.object_config["link_lengths_m"])
+    truth_pu = np.asarray(rec.object_config["link_lengths_pu"])
     assert np.abs(measured.lengths_pu - truth_pu).max() < 0.06
     assert seen.source.startswith("sweep, registered, brought into register on the object, frames ") and seen.views < 12
 
@@ -234,6 +234,6 @@ def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(han
     seen, measured = measured_chain(rec, PRINT_SCALE)
     assert measured.n_links == 2 and measured.rms_m < 0.002
     assert seen.source == "sweep, registered, brought into register on the object" and seen.views == rec.n_frames
-    truth_pu = np.asarray(rec.object_config["link_lengths_m"])
+    truth_pu = np.asarray(rec.object_config["link_lengths_pu"])
     assert np.abs(measured.lengths_pu - truth_pu).max() < 0.08  # measured: 0.071 (0.009 from the true poses)
     assert set(seen.timings_s) == {"registration", "observation", "measurement"}

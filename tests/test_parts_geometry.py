@@ -60,7 +60,7 @@ def _predict(rec: Path, capsys, *extra) -> dict:
 
 def _truth(obj: Path) -> np.ndarray:
     config = json.loads((obj / "object.json").read_text())
-    return np.array(config.get("link_lengths_pu") or config["link_lengths_m"])  # either name of the key
+    return np.array(config["link_lengths_pu"])
 
 
 def test_object_command_builds_the_8mm_plates(eight_mm):

@@ -9,6 +9,8 @@ import numpy as np
 import pytest
 from conftest import run_cli
 
+from spare_twin.config import DESIGN_CONTRACT_LENGTHS_KEY
+
 #: `predict --json`'s keys, in order (docs/design.md), on a recording with an answer.
 V2_KEYS = [
     "format",
@@ -60,9 +62,9 @@ def test_version_2_keys_sources_and_evidence(rig_rec, capsys):
     assert list(res) == V2_KEYS
     assert res["format"] == "spare-twin-prediction" and res["version"] == 2 and res["answer"] == "combined"
     assert res["n_links"] == 2 and len(res["link_lengths_pu"]) == 3 and len(res["joint_angles_rad"]) == 2
-    assert res["source"] == "measurement" and "probabilities" not in res and "link_lengths_m" not in res
+    assert res["source"] == "measurement" and "probabilities" not in res
     assert res["link_lengths_mm"] == pytest.approx([1000 * 0.08 * v for v in res["link_lengths_pu"]], abs=1e-3)
-    truth = rig_rec.object_config["link_lengths_m"]  # object.json's paper-unit lengths
+    truth = rig_rec.object_config["link_lengths_pu"]  # the object's paper-unit lengths
     assert np.abs(np.subtract(res["link_lengths_pu"], truth)).max() < 0.05
     m, net = res["measurement"], res["network"]
     assert m["n_links"] == 2 and m["link_lengths_pu"] == res["link_lengths_pu"]
@@ -131,7 +133,7 @@ def test_help_is_true(capsys):
         run_cli(["predict", "--help"], capsys)
     text = " ".join(capsys.readouterr().out.split())
     assert "recording's own object configuration is never read" in text and "default: the recording's" not in text
-    assert "--answer {combined,network,measurement}" in text and "link_lengths_m " not in text
+    assert "--answer {combined,network,measurement}" in text and f"{DESIGN_CONTRACT_LENGTHS_KEY} " not in text
 
 
 def test_a_hidden_last_link_labels_each_slot():

@@ -73,7 +73,7 @@ def check_chain(d) -> ChainSpec | None:
     return spec
 
 
-KEYS = ["n_links", "link_lengths_m", "colors", "print_scale", "name", "seed", "parts", "printer", "format", "bogus"]
+KEYS = ["n_links", "link_lengths_pu", "colors", "print_scale", "name", "seed", "parts", "printer", "format", "bogus"]
 
 
 @SETTINGS
@@ -83,7 +83,7 @@ def test_random_chain_configurations(d):
 
 
 #: Top-level keys in the order hypothesis prefers them (it shrinks towards the first).
-CHAIN_KEYS = ["link_lengths_m", "n_links", "colors", "print_scale", "name", "seed", "parts", "printer"]
+CHAIN_KEYS = ["link_lengths_pu", "n_links", "colors", "print_scale", "name", "seed", "parts", "printer"]
 MUTATIONS = ["replace", "element", "grow", "shrink", "sub", "drop"]
 
 

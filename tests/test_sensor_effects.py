@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from spare_twin.cli import main
-from spare_twin.object.kinematics import forward_kinematics, link_lengths_m
+from spare_twin.object.kinematics import forward_kinematics, printed_lengths_m
 from spare_twin.recording import Recording
 from spare_twin.sim.active_sensor import shadow_mask
 from spare_twin.sim.effects import ALL_EFFECTS, EFFECTS, NO_EFFECTS, parse_effects
@@ -120,7 +120,7 @@ def test_joint_play_tilts_a_links_tip_off_its_layer_by_the_drawn_angle(printed_o
         gt = rec.ground_truth()
         T_link1 = forward_kinematics(spec, gt["joint_angles_rad"][0])[1]  # the nominal link 1 frame
         slopes = []
-        length = link_lengths_m(spec)[1]
+        length = printed_lengths_m(spec)[1]
         for cam in [c.name for c in rec.cameras]:
             p = _points(rec, cam, label=2)  # link 1
             q = (np.linalg.inv(T_link1) @ np.c_[p, np.ones(len(p))].T)[:3].T

@@ -30,7 +30,7 @@ def test_render_writes_a_complete_recording(tmp_path, capsys):
     assert (seg > 0).any() and (d[seg > 0] > 0).all()
     gt = rec.ground_truth()
     assert gt["joint_angles_rad"].shape == (3, 2) and gt["T_world_link"].shape == (3, 3, 4, 4)
-    assert np.allclose(gt["link_lengths_m"], obj.spec.link_lengths_pu)
+    assert np.allclose(gt["link_lengths_pu"], obj.spec.link_lengths_pu)
     meta = json.loads((tmp_path / "rec" / "recording.json").read_text())
     assert meta["format"] == "spare-twin-recording"
 

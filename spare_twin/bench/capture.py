@@ -20,8 +20,7 @@ import numpy as np
 from spare_twin.bench.settings import BenchConfig, CaptureSettings
 from spare_twin.capture.export import export_7scenes
 from spare_twin.capture.importers import ImportOptions, import_folder
-from spare_twin.config import sample_chain
-from spare_twin.io import read_json
+from spare_twin.config import ChainSpec, sample_chain
 from spare_twin.object.folder import build_object
 from spare_twin.object.kinematics import base_pose
 from spare_twin.recording import Recording
@@ -113,8 +112,7 @@ def draw_sim_rig(obj_dir: Path, d: Path, c: CaptureSettings, cfg: BenchConfig) -
 def truth(obj_dir: Path, sensor: Path) -> dict:
     """The object's count and nominal lengths (paper units), and the joint angles it held in the capture."""
     gt = Recording.open(sensor).ground_truth()
-    spec = read_json(obj_dir / "object.json")
-    lengths = spec.get("link_lengths_pu", spec.get("link_lengths_m"))  # the older name, for older folders
+    lengths = ChainSpec.from_json_file(obj_dir / "object.json").link_lengths_pu  # older folders' key too
     return {
         "n_links": int(gt["n_links"]),
         "link_lengths_pu": [float(v) for v in lengths],

@@ -65,7 +65,7 @@ def _truth(rec: Recording) -> tuple[int, list[float]] | None:
     obj = rec.object_config
     if not obj or "n_links" not in obj:
         return None
-    return int(obj["n_links"]), [float(v) for v in obj["link_lengths_m"]]
+    return int(obj["n_links"]), [float(v) for v in obj["link_lengths_pu"]]
 
 
 def _diff(a, b) -> float | None:

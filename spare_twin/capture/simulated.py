@@ -26,7 +26,7 @@ from spare_twin.sim.effects import NO_EFFECTS, CaptureEffects
 from spare_twin.sim.render import RenderConfig, render_recording
 
 #: The ground-truth arrays of the simulation that describe the object, not the sensor's path.
-OBJECT_TRUTH = ("joint_angles_rad", "link_lengths_m", "n_links", "print_scale")
+OBJECT_TRUTH = ("joint_angles_rad", "link_lengths_pu", "n_links", "print_scale")
 
 
 @dataclass(frozen=True)

@@ -35,7 +35,7 @@ from spare_twin.compare.result import Comparison, Truth
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.object.folder import ObjectFolder, load_object
-from spare_twin.object.kinematics import link_lengths_m
+from spare_twin.object.kinematics import printed_lengths_m
 from spare_twin.output import RRD, check_output
 from spare_twin.predict.run import predict_recording
 from spare_twin.recording import Camera, Recording, RecordingWriter
@@ -113,7 +113,7 @@ def render_twin_through(
         n = obj.spec.n_links
         rec.set_ground_truth(
             joint_angles_rad=np.tile(np.asarray(joint_angles_rad, np.float64), (real.n_frames, 1)),
-            link_lengths_m=np.asarray(obj.spec.link_lengths_pu),
+            link_lengths_pu=np.asarray(obj.spec.link_lengths_pu),
             n_links=np.asarray(n),
             print_scale=np.asarray(obj.spec.print_scale),
         )
@@ -137,7 +137,7 @@ def object_cloud(real: Recording, obj: ObjectFolder) -> tuple[np.ndarray, np.nda
     points, colors, T_world_object = fuse_recording(real, object_only=True)
     T_object_world = np.linalg.inv(T_world_object)
     cloud = transformed(points, T_object_world)
-    lengths_m = link_lengths_m(obj.spec)
+    lengths_m = printed_lengths_m(obj.spec)
     if len(cloud) and cloud[:, 2].max() >= FRAGMENT_HEIGHT_SHARE * lengths_m[0]:
         return cloud, colors, T_world_object
     scene, scene_colors, _ = fuse_recording(real, object_only=False)

@@ -148,7 +148,7 @@ def build_manifest(root: Path, instances: int) -> dict:
                 "index": i,
                 "file": f"sequences/{f.name}",
                 "n_links": spec.n_links,
-                "link_lengths_m": list(spec.link_lengths_pu),
+                "link_lengths_pu": list(spec.link_lengths_pu),
                 "print_scale": spec.print_scale,
                 "colors": list(spec.colors),
                 "chain_seed": _seeds(seed, i)["chain"],

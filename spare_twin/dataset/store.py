@@ -10,7 +10,7 @@ Schema (readable with plain h5py; V cameras, T frames, H x W pixels, n moving li
     T_world_camera     float64 (V, 4, 4)    camera-to-world, metres, OpenCV axes (x right, y down, z forward)
     joint_angles_rad   float64 (T, n)       joint k = column k - 1
     T_world_link       float64 (T, n + 1, 4, 4)  link frames (link 0 = base), world z up, table z = 0
-    link_lengths_pu     float64 (n + 1,)     paper units, base first (physical = * attrs["print_scale"])
+    link_lengths_pu    float64 (n + 1,)     paper units, base first (physical = * attrs["print_scale"])
     lengths_label_m    float32 (7,)         the paper's 7-slot label, zeros past the last link
 
 Attributes: format ("spare-twin-sequence/1"), index, dataset_seed, n_links, split, print_scale,
@@ -68,7 +68,7 @@ def write_sequence(path: str | Path, seq, fps: float, compression_level: int = 1
                 "T_world_camera": np.asarray(seq.T_world_camera, np.float64),
                 "joint_angles_rad": np.asarray(seq.joint_angles_rad, np.float64),
                 "T_world_link": np.asarray(seq.T_world_link, np.float64),
-                "link_lengths_m": np.asarray(seq.spec.link_lengths_pu, np.float64),
+                "link_lengths_pu": np.asarray(seq.spec.link_lengths_pu, np.float64),
                 "lengths_label_m": seq.spec.label_lengths().astype(np.float32),
             }
             for key, arr in small.items():

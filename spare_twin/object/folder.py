@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from spare_twin.config import ChainSpec, design_walls_mm, sample_chain
+from spare_twin.config import DESIGN_CONTRACT_LENGTHS_KEY, LENGTHS_KEY, ChainSpec, design_walls_mm, sample_chain
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import encode_png, read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.object import checks, kinematics
@@ -64,9 +64,9 @@ class ObjectFolder:
         return keepout_height_m(self.spec)
 
     @property
-    def link_lengths_m(self) -> np.ndarray:
+    def printed_lengths_m(self) -> np.ndarray:
         """(n + 1,) link lengths of the printed object (metres), base first."""
-        return kinematics.link_lengths_m(self.spec)
+        return kinematics.printed_lengths_m(self.spec)
 
     @property
     def link_half_width_m(self) -> float:
@@ -93,7 +93,10 @@ def object_json(spec: ChainSpec) -> dict:
         "keepout_height_m": keepout_height_m(spec),
         "joints": joints,
     }
-    return {"format": OBJECT_FORMAT, **spec.to_dict(), "derived": derived}
+    config = spec.to_dict()
+    # DESIGN.md's object-folder contract: the paper-unit lengths under its key too (config.py says why)
+    config[DESIGN_CONTRACT_LENGTHS_KEY] = config[LENGTHS_KEY]
+    return {"format": OBJECT_FORMAT, **config, "derived": derived}
 
 
 #: Tessellation of the simulation's copy of the parts: the same solids with 16-gon circles, which
@@ -173,7 +176,7 @@ class ObjectSummary:
         return {
             "out": str(self.folder.root),
             "n_links": spec.n_links,
-            "link_lengths_m": list(spec.link_lengths_pu),  # paper units under the contract's key
+            LENGTHS_KEY: list(spec.link_lengths_pu),
             "link_lengths_mm": [round(x, 3) for x in spec.link_lengths_mm],
             "print_scale": spec.print_scale,
             "urdf": self.folder.urdf_path.name,

@@ -16,7 +16,7 @@ JOINT_AXIS = np.array([0.0, 1.0, 0.0])
 KEEPOUT_MARGIN_M = 0.002
 
 
-def link_lengths_m(spec: ChainSpec) -> np.ndarray:
+def printed_lengths_m(spec: ChainSpec) -> np.ndarray:
     """(n + 1,) link lengths of the printed object (physical metres), base first."""
     return np.asarray(spec.link_lengths_pu, dtype=np.float64) * spec.print_scale
 
@@ -30,7 +30,7 @@ def joint_origin(spec: ChainSpec, k: int) -> np.ndarray:
     """4x4 origin of joint k (1..n) in link k-1's frame (metres)."""
     T = np.eye(4)
     T[1, 3] = spec.layer_pitch_mm / 1000.0
-    T[2, 3] = link_lengths_m(spec)[k - 1]
+    T[2, 3] = printed_lengths_m(spec)[k - 1]
     return T
 
 
@@ -78,7 +78,7 @@ def link_segment_m(spec: ChainSpec, k: int) -> tuple[float, float]:
 
     The plate is this segment thickened by half the link width (a stadium).
     """
-    length = float(link_lengths_m(spec)[k])
+    length = float(printed_lengths_m(spec)[k])
     if k == spec.n_links:  # last link: the tip is at `length`, so the rounded end's centre is inside
         return 0.0, max(length - link_half_width_m(spec), 0.0)
     return 0.0, length
@@ -103,7 +103,7 @@ def plate_lowest_point_m(angles_rad, lengths_m, half_width_m: float) -> np.ndarr
 
 def lowest_point_m(spec: ChainSpec, joint_angles_rad) -> float:
     """Lowest height reached by any moving link's plate at these joint angles."""
-    return float(plate_lowest_point_m(joint_angles_rad, link_lengths_m(spec), link_half_width_m(spec)))
+    return float(plate_lowest_point_m(joint_angles_rad, printed_lengths_m(spec), link_half_width_m(spec)))
 
 
 def joint_limits_rad(spec: ChainSpec) -> np.ndarray:
@@ -114,7 +114,7 @@ def joint_limits_rad(spec: ChainSpec) -> np.ndarray:
     """
     limits = np.tile([-math.pi, math.pi], (spec.n_links, 1))
     _, reach = link_segment_m(spec, 1)
-    axis_height = float(link_lengths_m(spec)[0])
+    axis_height = float(printed_lengths_m(spec)[0])
     floor = keepout_height_m(spec) + KEEPOUT_MARGIN_M + link_half_width_m(spec)
     if reach > 0 and axis_height - reach < floor:
         # The distal end dips to axis_height + reach * cos(angle); keep it above the floor.

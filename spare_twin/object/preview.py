@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.config import ChainSpec
-from spare_twin.object.kinematics import forward_kinematics, link_lengths_m, sample_pose
+from spare_twin.object.kinematics import forward_kinematics, printed_lengths_m, sample_pose
 
 
 def render_preview(
@@ -28,7 +28,7 @@ def render_preview(
         )
         pb.createMultiBody(baseVisualShapeIndex=table, basePosition=[0, 0, -0.002], physicsClientId=client)
         origins = poses[:, :3, 3]
-        lengths = link_lengths_m(spec)
+        lengths = printed_lengths_m(spec)
         tips = np.array([p[:3, 3] + p[:3, 2] * lengths[k] for k, p in enumerate(poses)])
         pts = np.vstack([origins, tips, [[0, 0, 0]]])
         target = (pts.min(0) + pts.max(0)) / 2

@@ -9,7 +9,7 @@ Layout (all paths relative to the recording folder)::
     cameras/<cam>/segmentation/000000.png   uint8, 0 = background, k = link k-1 (sim only, optional)
     cameras/<cam>/T_world_camera.npy    float64 (frames, 4, 4), only for cameras that move
     ground_truth.npz                    sim only, optional: joint_angles_rad (frames, n),
-                                        T_world_link (frames, n + 1, 4, 4), link_lengths_m (n + 1,) in paper units,
+                                        T_world_link (frames, n + 1, 4, 4), link_lengths_pu (n + 1,) in paper units,
                                         n_links, print_scale; T_world_camera when poses are hidden
 
 recording.json keys: ``format`` ("spare-twin-recording"), ``version`` (1), ``frames`` (int),

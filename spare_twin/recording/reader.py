@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.config import with_paper_lengths
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, read_npy, read_png, write_bytes_atomic
 from spare_twin.recording.format import (
@@ -79,7 +80,8 @@ class Recording:
 
     @property
     def object_config(self) -> dict | None:
-        return self.meta.get("object")
+        obj = self.meta.get("object")
+        return with_paper_lengths(obj, str(self.root / "recording.json")) if isinstance(obj, dict) else obj
 
     @property
     def rig(self) -> str | None:
@@ -183,9 +185,10 @@ class Recording:
             return None
         try:
             with np.load(p, allow_pickle=False) as z:
-                return {k: z[k] for k in z.files}
+                arrays = {k: z[k] for k in z.files}
         except Exception as exc:  # zip, npy header (ValueError, SyntaxError, tokenize errors), zlib...
             raise SpareTwinError(f"{p}: not a readable .npz file ({_one_line(exc)})") from None
+        return with_paper_lengths(arrays, str(p))
 
     def write_ground_truth(self, arrays: dict[str, np.ndarray]) -> None:
         """Replace the recording's ground_truth.npz atomically (an importer keeps what is known of the object)."""

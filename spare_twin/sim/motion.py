@@ -89,5 +89,5 @@ def random_motion(
 def object_motion(obj: ObjectFolder, rng: np.random.Generator, cfg: MotionConfig) -> np.ndarray:
     """`random_motion` for an object folder: its joint limits, physical link lengths and keep-out."""
     return random_motion(
-        obj.joint_limits_rad, obj.link_lengths_m, obj.keepout_height_m, obj.link_half_width_m, rng, cfg
+        obj.joint_limits_rad, obj.printed_lengths_m, obj.keepout_height_m, obj.link_half_width_m, rng, cfg
     )

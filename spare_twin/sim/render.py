@@ -281,7 +281,7 @@ def render_recording(
             gt = dict(
                 joint_angles_rad=angles,
                 T_world_link=link_poses,
-                link_lengths_m=np.asarray(obj.spec.link_lengths_pu),
+                link_lengths_pu=np.asarray(obj.spec.link_lengths_pu),
                 n_links=np.asarray(obj.spec.n_links),
                 print_scale=np.asarray(obj.spec.print_scale),
                 **fx.ground_truth(),
