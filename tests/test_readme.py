@@ -219,3 +219,13 @@ def test_every_readme_command_runs(tmp_path):
             if argv[0] == "predict":
                 objects = [json.loads(p.read_text()) for p in tmp_path.glob("*/object.json")]
                 assert len(objects) == 1 and answer["n_links"] == objects[0]["n_links"], (argv, answer)
+
+
+def test_architecture_page_names_every_package():
+    """docs/architecture.md's tree (linked from the README) names every package and module of the library."""
+    tree = (REPO / "docs" / "architecture.md").read_text()
+    library = REPO / "spare_twin"
+    names = [p.name + "/" for p in library.iterdir() if (p / "__init__.py").is_file()]
+    names += [p.name for p in library.glob("*.py") if p.name not in ("__init__.py", "__main__.py")]
+    missing = [name for name in sorted(names) if not re.search(rf"(^|[\s,]){re.escape(name)}", tree, flags=re.M)]
+    assert not missing, f"docs/architecture.md does not name {missing}"
