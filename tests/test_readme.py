@@ -229,3 +229,15 @@ def test_architecture_page_names_every_package():
     names += [p.name for p in library.glob("*.py") if p.name not in ("__init__.py", "__main__.py")]
     missing = [name for name in sorted(names) if not re.search(rf"(^|[\s,]){re.escape(name)}", tree, flags=re.M)]
     assert not missing, f"docs/architecture.md does not name {missing}"
+
+
+def test_repository_paths_named_exist():
+    """A file or folder of the repository named in README.md or docs/*.md (`spare_twin/...`, `models/...`,
+    ...) is there; names with placeholders (NAME, <cam>, *) are not checked."""
+    named = re.compile(r"`((?:spare_twin|models|cad|capture|tests|scripts)/[\w./-]*)`")
+    missing = []
+    for page in [README, *sorted((REPO / "docs").glob("*.md"))]:
+        for path in named.findall(page.read_text()):
+            if not re.search(r"[A-Z]{3,}|[*<{]", path) and not (REPO / path).exists():
+                missing.append(f"{page.relative_to(REPO)}: {path}")
+    assert not missing, missing
