@@ -347,7 +347,7 @@ def test_compare_batch_reports_each_answer_alone(tmp_path, monkeypatch):
     def fake_compare(object_dir, real_dir, model=None, sim_dir=None, force=False):
         return FakeComparison(sim_dir)
 
-    def fake_predict(rec, model, progress=False, answer="combined"):
+    def fake_predict(rec, model, progress=False, answer="combined", parts=None):
         raise SpareTwinError("the temporal model reads 100 consecutive frames of one camera")
 
     for name in ("a", "b"):

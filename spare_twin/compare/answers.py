@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin.config import LABEL_SLOTS
+from spare_twin.config import LABEL_SLOTS, PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.metrics import length_errors
@@ -106,27 +106,28 @@ def _refused(reason: str) -> dict:
     return {"n_links": None, "link_lengths_pu": None, "joint_angles_rad": None, "refused": reason}
 
 
-def _predict(rec: Path, model: str | None, answer: str):
+def _predict(rec: Path, model: str | None, answer: str, parts: PartDims | None = None):
     """`predict_recording` and its wall time; (None, error) where it refuses the recording."""
     t0 = time.perf_counter()
     try:
-        pred = predict_recording(rec, model, progress=False, answer=answer)
+        pred = predict_recording(rec, model, progress=False, answer=answer, parts=parts)
     except SpareTwinError as exc:  # the recording named by its own name: where it lies differs per run
         return None, str(exc).replace(str(rec), rec.name), time.perf_counter() - t0
     return pred, None, time.perf_counter() - t0
 
 
 def answers_of(
-    rec: Path, combined_model: Model, models: list[Model], combined: dict | None = None
+    rec: Path, combined_model: Model, models: list[Model], combined: dict | None = None, parts: PartDims | None = None
 ) -> tuple[dict, dict]:
     """Every answer on the recording `rec` (combined, measurement, each of `models` alone), and the
     seconds each `predict` took. `combined`: the JSON of `predict`'s combined answer with
     `combined_model` where it was already made (`compare` makes it); the default model's network
-    estimate is taken from it: the same estimate `--answer network` gives."""
+    estimate is taken from it: the same estimate `--answer network` gives. `parts`: what the object
+    was printed with (`predict --parts`; default the default parts)."""
     answers, times = {}, {}
     error = None
     if combined is None:
-        pred, error, times[COMBINED] = _predict(rec, combined_model.path, COMBINED)
+        pred, error, times[COMBINED] = _predict(rec, combined_model.path, COMBINED, parts)
         combined = None if pred is None else pred.to_json()
     if combined is None:  # predict's own answer: a refusal is no answer
         answers[COMBINED], answers[MEASUREMENT] = _no_answer(f"error: {error}"), _no_answer(f"error: {error}")
@@ -136,7 +137,7 @@ def answers_of(
         if m.sha256 == combined_model.sha256 and combined is not None:
             answers[m.name] = _answer(combined, "network")
             continue
-        net, error, times[m.name] = _predict(rec, m.path, "network")
+        net, error, times[m.name] = _predict(rec, m.path, "network", parts)
         if net is None and error.startswith((f"{rec.name}:", f"{rec.name}/")):  # about its content: no answer
             answers[m.name] = _no_answer(f"error: {error}")
         elif net is None:  # about the model and the kind of recording it reads

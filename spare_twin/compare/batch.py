@@ -30,6 +30,7 @@ from spare_twin.compare.answers import (
 )
 from spare_twin.compare.sim_vs_real import CompareConfig, compare
 from spare_twin.compare.table import sim2real_table, table_markdown, write_table
+from spare_twin.config import ChainSpec
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets.checkpoint import default_model, load_model
@@ -101,8 +102,10 @@ def _pair_answers(d: Path, r: dict, combined: Model, nets: list[Model]) -> dict:
     """Every answer alone on both sides of a comparison `r`, scored: the combined answer and its
     estimates from `compare`'s own predictions, the other networks predicted here."""
     sides = {}
+    config = d / "object" / "object.json"  # what was printed, as `compare` read it (it refuses a pair without)
+    parts = ChainSpec.from_json_file(config).parts if config.is_file() else None
     for side, rec in (("sim", Path(r.get("sim_recording") or d / "sim_twin")), ("real", d / "real")):
-        answers, _ = answers_of(rec, combined, nets, combined=r[side])
+        answers, _ = answers_of(rec, combined, nets, combined=r[side], parts=parts)
         # the twin through the real cameras stands at the fitted angles, not the recorded ones
         truth = {**r["truth"], "joint_angles_rad": None} if side == "sim" else r["truth"]
         sides[side] = {"answers": score_answers(answers, truth)}
