@@ -356,7 +356,8 @@ def bench_sim2real(args: argparse.Namespace) -> int:
         force="--force",
     ):
         table, files = run_bench(args.out, cfg, models, args.workers, force=args.force)
-    return _report(args, table, bench_markdown(table) + f"wrote {', '.join(files.values())}\n")
+    text = "" if args.json else bench_markdown(table) + f"wrote {', '.join(files.values())}\n"
+    return _report(args, table, text)
 
 
 # -- bench training --------------------------------------------------------------------------------
