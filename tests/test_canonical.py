@@ -128,7 +128,10 @@ def test_image_networks_refuse_captures_outside_their_rig(registered_rec, rig_re
 
 
 def test_predict_on_the_simulated_sensor_recording(registered_rec, handheld_rec, tiny_models, capsys):
+    """The tiny networks (one epoch on 12 synthetic samples) are genuinely weak; what each does on the
+    2-link object's hand-held capture is asserted as measured, and predict never passes on a wrong count."""
     root, _ = registered_rec
+    answers = {}
     for name, method in (("geo", "posed"), ("conv3d", "fused")):
         code, res, err = predict_json(root, tiny_models[name], capsys, "--outside-rig")
         assert code == 0, err
@@ -136,22 +139,20 @@ def test_predict_on_the_simulated_sensor_recording(registered_rec, handheld_rec,
         assert len(net["probabilities"]) == 6 and abs(sum(net["probabilities"]) - 1) < 1e-5
         assert res["input"] == method and net["yaw_hypotheses_deg"] == [0.0, 90.0, 180.0, 270.0]
         assert net["yaw_deg"] in net["yaw_hypotheses_deg"]
-        _answers_its_argmax_or_abstains(res)
         assert res["measurement"]["n_links"] == 2  # measured beside it on the same recording
+        answers[name] = res
+    # the voxel net on the posed views ranks the true count first, sure enough to answer (p = 0.58 measured)
+    geo = answers["geo"]
+    assert geo["network"]["n_links"] == geo["n_links"] == 2 and geo["source"] == "network", geo["network"]
+    # the Conv3D on the fused canonical views is near uniform (top p = 0.22 measured): no count, a reason
+    conv3d = answers["conv3d"]
+    assert max(conv3d["network"]["probabilities"]) < 0.5, conv3d["network"]["probabilities"]
+    assert conv3d["network"]["n_links"] is None and "too weak" in conv3d["reason"]
+    assert conv3d["n_links"] is None and conv3d["source"] is None
     # unregistered hand-held simulation with known poses: the world is canonical, no yaw search
     code, res, err = predict_json(handheld_rec, tiny_models["geo"], capsys, "--yaw-hypotheses", "2", "--outside-rig")
     assert code == 0, err
     assert res["input"] == "posed" and "yaw_hypotheses_deg" not in res["network"]
-
-
-def _answers_its_argmax_or_abstains(res):
-    """An image network's answer: its most probable count where that has p >= 0.5, else no answer
-    that says why (a tiny network trained for one epoch is rarely that sure)."""
-    p = res["network"]["probabilities"]
-    if max(p) >= 0.5:
-        assert res["n_links"] == int(np.argmax(p)) + 1 and res["source"] == "network"
-    else:
-        assert res["n_links"] is None and "too weak" in res["reason"] and res["network"]["n_links"] is None
 
 
 def test_predict_on_real_imported_recordings(tiny_models, tmp_path, capsys):

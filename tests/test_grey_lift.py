@@ -101,20 +101,22 @@ def test_a_short_grey_training_learns_to_count(grey_run, capsys):
     assert json.loads(out)["count_accuracy"] == pytest.approx(best["val_count_accuracy"])
 
 
-def test_the_grey_network_predicts_a_rig_recording_from_its_colour_views(grey_run, rig_rec, capsys):
+def test_the_grey_network_predicts_a_rig_recording_from_its_colour_views(grey_run, rig_rec, printed_object, capsys):
     code, res, err = predict_json(rig_rec.root, grey_run[0] / "model.pt", capsys)
     assert code == 0, err
     # trained on the synthetic ring, so the recording's own rig views come in posed, in the object frame
-    assert res["input"] == "posed" and res["source"] in ("network", None)
+    assert res["input"] == "posed"
     net = res["network"]
     probabilities = net["probabilities"]
     assert len(probabilities) == 6 and abs(sum(probabilities) - 1) < 1e-5
-    # a tiny network: its count is its argmax where it is sure enough, else no answer and a reason
-    if max(probabilities) >= MIN_COUNT_PROBABILITY:
-        assert net["n_links"] == res["n_links"] == probabilities.index(max(probabilities)) + 1
-        assert len(res["link_lengths_pu"]) == res["n_links"] + 1
-    else:
-        assert net["n_links"] is None and res["n_links"] is None and net["reason"] and res["reason"]
+    # The object has 2 moving links; the measurement beside the network says so. The tiny network (5
+    # epochs on 192 capsule renders of the synthetic ring) is genuinely weak on the twin's own render:
+    # its top class is far off and unsure (6, p = 0.37 measured), so it gives no count but a reason, and
+    # predict's answer is never its guess: the measured count or none.
+    assert res["measurement"]["n_links"] == printed_object.spec.n_links == 2
+    assert max(probabilities) < MIN_COUNT_PROBABILITY, probabilities
+    assert net["n_links"] is None and "too weak" in net["reason"]
+    assert res["n_links"] in (None, 2) and res["source"] in (None, "measurement"), res
 
 
 def test_grey_lift_reads_grey_only():

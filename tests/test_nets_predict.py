@@ -46,15 +46,14 @@ def test_predict_json(trained, tmp_path, capsys):
     assert res["format"] == "spare-twin-prediction" and res["version"] == 2 and "probabilities" not in res
     net = res["network"]
     assert len(net["probabilities"]) == 6 and abs(sum(net["probabilities"]) - 1) < 1e-5
-    # in the training rig the answer is the network's own: its argmax where it is sure enough, else none
+    # in the training rig the answer is the network's own (no measurement beside it). This network, 5
+    # epochs on 192 synthetic samples, ranks the true count (spec.n_links = 3) first but is not sure
+    # (p = 0.27, measured): predict gives no count and says why, rather than its guess
     assert res["input"] == "rig" and res["measurement"] is None
-    k = int(np.argmax(net["probabilities"]))
-    if net["probabilities"][k] >= 0.5:
-        assert res["n_links"] == net["n_links"] == k + 1 and res["source"] == "network"
-        assert len(res["link_lengths_pu"]) == k + 2 and len(res["link_lengths_mm"]) == k + 2
-    else:  # a network trained for 5 epochs on 12 sequences is rarely sure
-        assert res["n_links"] is None and net["n_links"] is None and "too weak" in res["reason"]
-        assert res["link_lengths_pu"] is None and res["source"] is None
+    assert int(np.argmax(net["probabilities"])) + 1 == spec.n_links == 3, net["probabilities"]
+    assert max(net["probabilities"]) < 0.5, net["probabilities"]
+    assert res["n_links"] is None and net["n_links"] is None and "too weak" in res["reason"]
+    assert res["link_lengths_pu"] is None and res["source"] is None
 
 
 def test_predict_resizes_views_and_keeps_geometry(trained, tmp_path):
@@ -78,12 +77,18 @@ def test_predict_accepts_another_rigs_posed_views(trained, tmp_path, capsys):
 
     # The voxel net fuses posed views of any rig, so a recording of another rig needs no canonical views.
     assert ckpt.load(trained / "model.pt")["net"]["arch"] == "geo_voxel"
-    rec, _ = _write_recording(tmp_path / "rec", rig_name="some-other-rig")
-    argv = ["predict", str(rec), "--model", str(trained / "model.pt"), "--answer", "network", "--json"]
-    code, out, err = run_cli(argv, capsys)
-    assert code == 0, err
-    res = json.loads(out)
-    assert res["input"] == "posed" and len(res["network"]["probabilities"]) == 6 and res["measurement"] is None
+    answers = {}
+    for rig_name in (None, "some-other-rig"):
+        rec, _ = _write_recording(tmp_path / str(rig_name), rig_name=rig_name)
+        argv = ["predict", str(rec), "--model", str(trained / "model.pt"), "--answer", "network", "--json"]
+        code, out, err = run_cli(argv, capsys)
+        assert code == 0, err
+        answers[rig_name] = json.loads(out)
+    res = answers["some-other-rig"]
+    assert res["input"] == "posed" and answers[None]["input"] == "rig" and res["measurement"] is None
+    # the same cameras under another rig's name: the posed path gives the network the same evidence
+    own, other = answers[None]["network"]["probabilities"], res["network"]["probabilities"]
+    np.testing.assert_allclose(other, own, atol=1e-5)
 
 
 def test_predict_on_a_missing_recording_is_a_one_line_error(trained, tmp_path, capsys):

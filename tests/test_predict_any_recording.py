@@ -7,6 +7,7 @@ import json
 import subprocess
 import sys
 
+import numpy as np
 from capture_helpers import TUM_K, TUM_PAIR
 
 
@@ -15,7 +16,7 @@ def _predict(rec, *extra) -> subprocess.CompletedProcess:
     return subprocess.run(cmd, capture_output=True, text=True, timeout=600)
 
 
-def test_predict_json_has_joint_angles_and_is_the_same_bytes_every_run(sweep):
+def test_predict_json_has_joint_angles_and_is_the_same_bytes_every_run(sweep, printed_object):
     first, second = _predict(sweep, "--json"), _predict(sweep, "--json")
     assert first.returncode == 0, first.stderr[-2000:]
     assert first.stdout == second.stdout  # registration, observation, network and chain fit: deterministic
@@ -25,6 +26,10 @@ def test_predict_json_has_joint_angles_and_is_the_same_bytes_every_run(sweep):
     assert len(res["link_lengths_pu"]) == 3 and res["source"] == "measurement" and "reason" not in res
     assert len(res["network"]["probabilities"]) == 6 and "probabilities" not in res
     assert res["measurement"]["n_links"] == 2 and res["measurement"]["rms_m"] < 0.002
+    # the printed lengths within 0.03 paper units each (2.4 mm at the print scale; measured 0.010 at worst)
+    errors_pu = np.subtract(res["link_lengths_pu"], printed_object.spec.link_lengths_pu)
+    assert np.abs(errors_pu).max() < 0.03, errors_pu
+    assert res["network"]["n_links"] == 2  # the shipped profile network alone is sure of it too (p = 0.99)
 
 
 def test_tum_desk_pair_is_no_object(tmp_path, capsys):
@@ -52,4 +57,6 @@ def test_an_empty_table_render_is_no_object(printed_object, tmp_path, capsys):
     capsys.readouterr()
     assert main(["predict", str(rec), "--json"]) == 0
     res = json.loads(capsys.readouterr().out)
-    assert res["n_links"] is None and "reason" in res
+    # what stands on the table is clutter, far wider at its foot than a chain's base link
+    assert res["n_links"] is None and res["reason"].startswith("no chain in view: "), res["reason"]
+    assert res["link_lengths_pu"] is None and res["source"] is None
