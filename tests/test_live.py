@@ -129,6 +129,15 @@ def test_no_update_while_the_frames_go_too_little_round_the_chain():
     assert not _too_little_arc(frames(10), 8, None)  # no chain seen yet: the update runs and looks
 
 
+def test_updates_read_few_views_until_the_first_count_and_all_at_the_end():
+    from spare_twin.live.session import MIN_VIEWS, LiveConfig, _views_for
+
+    cfg = LiveConfig(views=16)
+    assert _views_for(8, ended=False, counted=False, cfg=cfg) == MIN_VIEWS  # the first count comes sooner
+    assert _views_for(8, ended=False, counted=True, cfg=cfg) == 8  # then the rate's own choice
+    assert _views_for(8, ended=True, counted=False, cfg=cfg) == 16  # the stream has ended: every view asked for
+
+
 def test_the_estimate_process_answers_as_the_thread_and_ends_with_its_pipe(sweep):
     """The measurement in its own process (`live.worker`) gives the very answer it gives in-thread; a
     one-line error in it is one line here; it ends when the parent closes its pipe (as when it dies)."""

@@ -1,19 +1,20 @@
 """`spare-twin live`: frames in, written as a recording, placed one by one, the chain estimated at
 least once a second, and the final answer `predict`'s on what was written.
 
-Three threads share the work:
+Three threads and a process share the work:
 
 - the reader takes each frame from the source as it comes (`live.sources`), appends it to the
   recording (`RecordingWriter` as a stream: nothing seen is lost) and offers it to a queue of
   `queue_frames`; when the queue is full the oldest frame waiting is dropped from the estimate (it is
   still in the recording) and counted: frames that come faster than they can be used never pile up,
-  and the tracker takes the newest. With
-  `speed` 0 (a replay as fast as it is used) the reader waits instead, and no frame is dropped;
+  and the tracker takes the newest. With `speed` 0 (a replay as fast as it is used) the reader waits
+  instead, and no frame is dropped;
 - the tracker (the calling thread) places each queued frame against the last one (`live.track`);
 - the estimator, every `update_s` seconds that new frames were placed, estimates the chain from the
-  frames kept (`live.estimate`) and reports it: an update (`on_update`), the live view, and once the
-  answer has held for `stable_s` seconds of the stream with strong evidence, "enough" (with
-  `until_stable`, the stream stops there).
+  frames kept (`live.estimate`; the observation and measurement in a process of its own,
+  `live.worker`, so that they run beside the tracker) and reports it: an update (`on_update`), the
+  live view, and once the answer has held for `stable_s` seconds of the stream with strong evidence,
+  "enough" (with `until_stable`, the stream stops there).
 
 Ctrl-C (SIGINT) stops the reader; the recording is finalised with every frame received, and the final
 answer is `predict` on it. Figures a run measures (`LiveResult`): the first estimate's time, the
@@ -337,6 +338,17 @@ def _adapted(views: int, took_s: float, cfg: LiveConfig) -> int:
     return views
 
 
+def _views_for(views: int, ended: bool, counted: bool, cfg: LiveConfig) -> int:
+    """The views an update reads: `views` (adapted to the rate), all `cfg.views` once the stream has
+    ended (no rate to keep), and `MIN_VIEWS` until an update has given a count: the first count waits
+    for the frames to go 60 degrees round the chain and then for one update, and 4 views took 1.7 s
+    where 6 took 2.6 s on the loaded 2-core machine (an answer from 4 views is rougher, and the next
+    updates read more)."""
+    if ended:
+        return cfg.views
+    return views if counted else min(views, MIN_VIEWS)
+
+
 #: Degrees short of `MIN_ARC_DEG` that the placed frames may go round the chain's axis and still be
 #: estimated (the axis is the last update's, and bringing views into register on the object moves them
 #: a little).
@@ -360,6 +372,7 @@ def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Share
     update's time."""
     used_placed, next_at, views, last_full = 0, None, min(cfg.start_views, cfg.views), False
     axis = None  # the chain's axis, while the views went too little round it to measure
+    counted = False  # an update has given a count
     try:
         while not sh.stop.is_set():
             ended = sh.tracked.is_set()  # read before the snapshot: then every frame placed is in it
@@ -372,13 +385,14 @@ def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Share
             if not ended and (waiting or len(kept) < min(cfg.first_views, cfg.views) or placed == used_placed):
                 sh.stop.wait(0.05)
                 continue
-            n_views = cfg.views if ended else views  # the stream has ended: no rate to keep
+            n_views = _views_for(views, ended, counted, cfg)
             if not ended and _too_little_arc(kept, n_views, axis):
                 sh.stop.wait(0.05)
                 continue
             next_at = now + cfg.update_s
             pred, arc_deg = estimate_and_arc(est, kept, n_views, process)
             axis = pred.T_world_profile if arc_deg is not None and arc_deg < MIN_ARC_DEG else None
+            counted = counted or pred.n_links is not None
             views = _adapted(views, time.monotonic() - now, cfg)
             used_placed, last_full = placed, ended
             u = Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), n_views), received, placed, dropped)
