@@ -20,10 +20,8 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
-import multiprocessing
 import os
 import sys
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import h5py
@@ -31,6 +29,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
+from spare_twin.dataset.backends import start_pool
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic
 from spare_twin.measure.slots import measurement_slots
@@ -72,14 +71,13 @@ def _sequence_samples(job: tuple) -> dict:
     return out
 
 
-#: Fresh worker processes (not forks of this one), so that they start with the BLAS threads below.
-_SPAWN = multiprocessing.get_context("spawn")
 _BLAS_THREADS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 @contextlib.contextmanager
 def _single_threaded_blas():
-    """Worker processes started inside get one BLAS thread each: the measurement's least-squares fits
+    """Worker processes started inside (spawned, not forked: they read the environment afresh) get one
+    BLAS thread each: the measurement's least-squares fits
     take many small SVDs, which threads only slow down once every core runs a worker (measured: 1.6 s
     against 4.5 s per sample on a busy 2-core machine)."""
     saved = {k: os.environ.get(k) for k in _BLAS_THREADS}
@@ -126,17 +124,19 @@ def observe_split(
     if not jobs:
         raise SpareTwinError(f"data: no {split} sequences in {', '.join(map(str, data_dirs))}")
     parts = []
-    bar = tqdm(total=len(jobs), desc=f"observe {split}", unit="seq", file=sys.stderr, disable=not progress)
-    if workers > 1:
-        with _single_threaded_blas(), ProcessPoolExecutor(min(workers, len(jobs)), mp_context=_SPAWN) as pool:
-            for part in pool.map(_sequence_samples, jobs):
-                parts.append(part)
+    # closed on the way out of an interrupt too, so that the command's last line is not glued to the bar's
+    with tqdm(total=len(jobs), desc=f"observe {split}", unit="seq", file=sys.stderr, disable=not progress) as bar:
+        if workers > 1:
+            # the dataset's pool: quiet on Ctrl-C (the driver alone answers it, and the pool is terminated);
+            # imap keeps the jobs' order, so the split's order does not depend on `workers`
+            with _single_threaded_blas(), start_pool(min(workers, len(jobs))) as pool:
+                for part in pool.imap(_sequence_samples, jobs):
+                    parts.append(part)
+                    bar.update()
+        else:
+            for job in jobs:
+                parts.append(_sequence_samples(job))
                 bar.update()
-    else:
-        for job in jobs:
-            parts.append(_sequence_samples(job))
-            bar.update()
-    bar.close()
     if not any(p["n"] for p in parts):
         raise SpareTwinError(f"data: no chain observed in any {split} sample of {', '.join(map(str, data_dirs))}")
     out = {
