@@ -164,7 +164,7 @@ def test_the_estimate_process_answers_as_the_thread_and_ends_with_its_pipe(sweep
         assert estimate_from_frames(est, tracker.kept, 8, process).to_json() == here.to_json()  # still serving
     finally:
         process.close()
-    assert process._proc.returncode == 0
+    assert process._proc.returncode == 0 and process.peak_rss_mb > 50.0
     orphan = MeasureProcess()
     orphan._requests.close()  # what the parent's death does to the pipe
     assert orphan._proc.wait(timeout=30) == 0
@@ -329,3 +329,15 @@ def test_compare_rrd_poses_the_urdf_twins_per_frame(printed_object, tmp_path):
                    "/twin_sim/joints/joint1", "/twin_real/joints/joint2", "/angle_error_deg/joint2"):  # fmt: skip
         assert entity in text, entity
     assert "/world/twin/link0" not in text
+
+
+def test_bench_live_reports_its_figures_with_the_estimate_process(sweep):
+    """`bench live`'s figures on the tests' sweep (no timing asserted: timings belong to the benchmark):
+    the first count's stream time, the last frame's wall time, both processes' memory, the load."""
+    from spare_twin.bench.live import LiveBench, bench_live
+
+    fig = bench_live(LiveBench(rec=str(sweep), speed=0.0), log=lambda line: None).to_json()
+    assert fig["frames_received"] == fig["frames_placed"] == 16 and fig["frames_dropped"] == 0
+    assert 0.0 <= fig["first_estimate_stream_s"] <= fig["stream_s"] and fig["last_frame_wall_s"] >= 0.0
+    assert 50.0 < fig["peak_rss_estimate_process_mb"] < fig["peak_rss_mb"]  # its own process ran (no torch in it)
+    assert len(fig["load_average"]) == 2 and fig["same_count"] and fig["final"]["n_links"] == 2

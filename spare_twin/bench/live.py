@@ -6,7 +6,14 @@ from the first frame on):
 - time to first estimate: until the first update with a count;
 - update interval: between consecutive updates (median and largest);
 - frames received, placed (used by the estimate) and dropped from it;
-- peak RSS of the process (`resource.getrusage`: everything loaded, torch included);
+- when the first estimate with a count came, in stream seconds too: the frames it read had to go
+  60 degrees round the chain (`predict.abstain.MIN_ARC_DEG`), which the rendered sweep does after
+  about 1.7 s; the rest is the wait for the update and the update itself;
+- when the last frame came (wall seconds; more than the stream's length: the reader fell behind);
+- peak RSS of the process (`resource.getrusage`: everything loaded, torch included) and of the
+  estimate's own process (`live.worker`, as it says when it ends);
+- the load average at the start and the end (the machine may be shared: timings are only comparable
+  under like load);
 - agreement: the last update against the final answer (`predict` on the recording `live` wrote) and
   both against the truth in the simulated recording.
 
@@ -15,6 +22,7 @@ The sweep is rendered here (a 2-link object, seed 7, noise of an SR300) unless `
 
 from __future__ import annotations
 
+import os
 import resource
 import tempfile
 import time
@@ -82,11 +90,13 @@ def bench_live(cfg: LiveBench = LiveBench(), log=print) -> LiveBenchResult:
         updates: list[Update] = []
         log(f"live --replay at {cfg.speed:g} x: {src.n_frames} frames of {src.cameras[0].width}x"
             f"{src.cameras[0].height} at {src.fps:g} fps ...")  # fmt: skip
+        load_start = os.getloadavg()[0]
         t0 = time.perf_counter()
         res = live(root / "live", replay=rec_dir, speed=cfg.speed, rrd=cfg.rrd, viewer=False,
                    on_update=updates.append, force=cfg.rrd is not None)  # fmt: skip
         wall_s = time.perf_counter() - t0
         peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+        load_end = os.getloadavg()[0]
         truth = _truth(src)
     steps = [u for u in updates if not u.final]
     counted = [u for u in steps if u.prediction.n_links is not None]
@@ -102,12 +112,18 @@ def bench_live(cfg: LiveBench = LiveBench(), log=print) -> LiveBenchResult:
         "updates": len(steps),
         "first_update_s": round(steps[0].wall_s, 3) if steps else None,
         "first_estimate_s": round(counted[0].wall_s, 3) if counted else None,
+        "first_estimate_stream_s": round(counted[0].t_s, 3) if counted else None,
+        "last_frame_wall_s": round(res.stream_wall_s, 3),
         "update_interval_median_s": round(float(np.median(gaps)), 3) if len(gaps) else None,
         "update_interval_max_s": round(float(gaps.max()), 3) if len(gaps) else None,
         "enough_at_stream_s": None if res.enough_at is None else round(res.enough_at.t_s, 3),
         "final_after_stream_end_s": round(res.final.wall_s - (steps[-1].wall_s if steps else 0.0), 3),
         "wall_s": round(wall_s, 3),
         "peak_rss_mb": round(peak_rss_mb, 1),
+        "peak_rss_estimate_process_mb": None
+        if res.estimate_process_rss_mb is None
+        else round(res.estimate_process_rss_mb, 1),
+        "load_average": [round(load_start, 1), round(load_end, 1)],
         "last_update": None if last is None else {"n_links": last.n_links, "link_lengths_pu": last.link_lengths_pu},
         "final": {"n_links": final.n_links, "link_lengths_pu": final.link_lengths_pu},
         "last_update_vs_final_pu": None if last is None else _diff(last.link_lengths_pu, final.link_lengths_pu),

@@ -130,6 +130,8 @@ class LiveResult:
     frames_placed: int = 0
     stream_s: float = 0.0
     """Stream seconds of the last frame received."""
+    estimate_process_rss_mb: float | None = None
+    """Peak memory of the estimate's process (`live.worker`), None without one."""
     stream_wall_s: float = 0.0
     """Wall seconds from the first frame's arrival to the last's (more than `stream_s`: the reader
     fell behind the source)."""
@@ -257,6 +259,7 @@ def run_live(
     finally:
         if process is not None:
             process.close()
+            res.estimate_process_rss_mb = process.peak_rss_mb
     res.frames_received, res.frames_dropped, res.frames_placed = sh.received, sh.dropped, tracker.placed
     res.stream_s = sh.last_t_s
     res.stream_wall_s = 0.0 if sh.t0_wall is None else sh.last_wall - sh.t0_wall

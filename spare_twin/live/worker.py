@@ -22,6 +22,7 @@ recording and then ends this process. It ends when the parent closes its pipe, o
 from __future__ import annotations
 
 import os
+import resource
 import signal
 import subprocess
 import sys
@@ -71,7 +72,8 @@ def _serve(requests: Connection, replies: Connection) -> None:
             request = requests.recv()
         except (EOFError, OSError):  # the parent closed the pipe or died
             return
-        if request is None:
+        if request is None:  # the parent is done: say how much memory this process took at most
+            replies.send(("bye", resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0))
             return
         try:
             replies.send(("ok", measure_arrays(*request)))
@@ -102,6 +104,7 @@ class MeasureProcess:
         os.close(req_r)
         os.close(rep_w)
         self._requests, self._replies = Connection(req_w, readable=False), Connection(rep_r, writable=False)
+        self.peak_rss_mb: float | None = None
         if not self._replies.poll(START_TIMEOUT_S):
             self.close()
             raise SpareTwinError(f"live: the estimate's process did not start within {START_TIMEOUT_S:g} s")
@@ -124,10 +127,14 @@ class MeasureProcess:
         return self._reply()
 
     def close(self) -> None:
-        """End the process: it finishes the request it is on, if any, or is ended after 10 s."""
+        """End the process: it finishes the request it is on, if any, or is ended after 10 s;
+        `peak_rss_mb` is then its peak memory (as it said; None where it could not)."""
         try:
             self._requests.send(None)
-        except (OSError, ValueError):
+            if self._replies.poll(10.0):
+                reply = self._replies.recv()
+                self.peak_rss_mb = float(reply[1]) if reply[0] == "bye" else None
+        except (OSError, ValueError, EOFError):
             pass
         self._requests.close()
         try:
