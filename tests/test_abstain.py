@@ -9,12 +9,11 @@ measured figures over all 50 frames and every run of 2-10 are in docs/observe.md
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pytest
-from capture_helpers import APC
+from capture_helpers import APC, seven_scenes
 from conftest import run_cli
 
 #: Depth and poses of the other 46 APC frames (tests/data/README.md): with the 4 of APC, all 50 views.
@@ -71,11 +70,7 @@ def test_no_answer_on_any_frame_or_short_run_of_the_shelf(profile_model):
 
 def test_a_single_real_frame_end_to_end(tmp_path, capsys):
     """The CLI on a one-frame recording of the shelf: exit 0, `n_links: null` and the reason."""
-    src = tmp_path / "src"
-    src.mkdir()
-    for f in APC.glob("frame-000015.*"):
-        shutil.copy(f, src / f.name)
-    shutil.copy(APC / "intrinsics.K.txt", src)
+    src = seven_scenes(tmp_path / "src", frames=(15,))
     assert (
         run_cli(["capture", "import", str(src), "--layout", "7scenes", "--out", str(tmp_path / "rec")], capsys)[0] == 0
     )

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
-from capture_helpers import APC, TUM_K, TUM_PAIR
+from capture_helpers import TUM_K, TUM_PAIR, seven_scenes
 from conftest import REPO, stderr_lines, tree
 
 from spare_twin.cli import main
@@ -56,12 +56,7 @@ def sources(printed_object, tmp_path_factory) -> dict[str, Path]:
     render_recording(obj, root / "rec1", RenderConfig(frames=1, **hand), progress=False)
     render_recording(obj, root / "rig", RenderConfig(frames=1, resolution="64x48"), progress=False)
     write_synthetic(root / "syn", SyntheticSpec(sizes=(("train", 6), ("val", 6), ("test", 6)), seed=5))
-    scenes = root / "scenes"
-    scenes.mkdir()
-    for n in (15, 19):
-        for kind in ("color.png", "depth.png", "pose.txt"):
-            shutil.copy(APC / f"frame-{n:06d}.{kind}", scenes)
-    shutil.copy(APC / "intrinsics.K.txt", scenes)
+    scenes = seven_scenes(root / "scenes")
     return {"obj": obj, "tum": TUM_PAIR, "scenes": scenes} | {k: root / k for k in ("rec", "rec1", "rig", "syn")}
 
 

@@ -5,18 +5,8 @@ import shutil
 import cv2
 import numpy as np
 import pytest
-from capture_helpers import APC, APC_FRAMES, TUM_PAIR
+from capture_helpers import APC, TUM_PAIR, seven_scenes
 from conftest import run_cli
-
-
-def _seven_scenes(tmp_path, frames=APC_FRAMES[:2]):
-    src = tmp_path / "src"
-    src.mkdir()
-    for n in frames:
-        for kind in ("color.png", "depth.png", "pose.txt"):
-            shutil.copy(APC / f"frame-{n:06d}.{kind}", src / f"frame-{n:06d}.{kind}")
-    shutil.copy(APC / "intrinsics.K.txt", src)
-    return src
 
 
 def _import(src, out, capsys, *extra):
@@ -45,7 +35,7 @@ def _depth(n):
     ],
 )
 def test_bad_frames(tmp_path, capsys, case, expect):
-    src = _seven_scenes(tmp_path)
+    src = seven_scenes(tmp_path / "src")
     f = src / "frame-000019"
     if case == "missing_depth":
         (src / "frame-000019.depth.png").unlink()
@@ -71,7 +61,7 @@ def test_bad_frames(tmp_path, capsys, case, expect):
 
 
 def test_wrong_depth_scale_is_caught(tmp_path, capsys):
-    src = _seven_scenes(tmp_path)
+    src = seven_scenes(tmp_path / "src")
     code, line, _ = _import(src, tmp_path / "rec", capsys, "--depth-scale", "1.0")  # mm read as metres: ~400 m
     assert code == 1 and "frame-000015.depth.png: median depth" in line and "wrong --depth-scale" in line
     code, line, _ = _import(TUM_PAIR, tmp_path / "rec", capsys, "--intrinsics", "1,1,0.5,0.5")
@@ -80,7 +70,7 @@ def test_wrong_depth_scale_is_caught(tmp_path, capsys):
 
 
 def test_failed_import_leaves_existing_recording_intact(tmp_path, capsys):
-    src = _seven_scenes(tmp_path)
+    src = seven_scenes(tmp_path / "src")
     out = tmp_path / "rec"
     code, _, _ = _import(src, out, capsys)
     assert code == 0

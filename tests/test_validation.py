@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from capture_helpers import APC
+from capture_helpers import APC, seven_scenes
 from conftest import REPO, run_cli, stderr_lines, tree
 
 from spare_twin.errors import SpareTwinError
@@ -122,12 +122,7 @@ def test_per_frame_pose_file_must_be_rigid(spoil, tiny_rec, tmp_path, capsys, mo
 @pytest.mark.parametrize("spoil", SPOILED_POSES)
 def test_import_refuses_a_pose_that_is_not_rigid(spoil, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    src = tmp_path / "scenes"
-    src.mkdir()
-    for n in (15, 19):
-        for kind in ("color.png", "depth.png", "pose.txt"):
-            shutil.copy(APC / f"frame-{n:06d}.{kind}", src)
-    shutil.copy(APC / "intrinsics.K.txt", src)
+    src = seven_scenes(tmp_path / "scenes")
     pose = src / "frame-000019.pose.txt"
     np.savetxt(pose, SPOILED_POSES[spoil](np.loadtxt(pose)))
     argv = ["capture", "import", "scenes", "--layout", "7scenes", "--out", "rec"]
