@@ -111,7 +111,7 @@ def test_a_full_queue_drops_its_oldest_frame():
 
 
 def test_no_update_while_the_frames_go_too_little_round_the_chain():
-    from spare_twin.live.session import ARC_MARGIN_DEG, _too_little_arc
+    from spare_twin.live.session import _too_little_arc
     from spare_twin.live.track import PlacedFrame
     from spare_twin.predict.abstain import MIN_ARC_DEG
 
@@ -124,8 +124,8 @@ def test_no_update_while_the_frames_go_too_little_round_the_chain():
         return out
 
     axis = np.eye(4)
-    assert _too_little_arc(frames(MIN_ARC_DEG - ARC_MARGIN_DEG - 10), 8, axis)
-    assert not _too_little_arc(frames(MIN_ARC_DEG - ARC_MARGIN_DEG + 1), 8, axis)
+    assert _too_little_arc(frames(MIN_ARC_DEG - 1), 8, axis)
+    assert not _too_little_arc(frames(MIN_ARC_DEG + 1), 8, axis)
     assert not _too_little_arc(frames(10), 8, None)  # no chain seen yet: the update runs and looks
 
 

@@ -352,18 +352,12 @@ def _views_for(views: int, ended: bool, counted: bool, cfg: LiveConfig) -> int:
     return views if counted else min(views, MIN_VIEWS)
 
 
-#: Degrees short of `MIN_ARC_DEG` that the placed frames may go round the chain's axis and still be
-#: estimated (the axis is the last update's, and bringing views into register on the object moves them
-#: a little).
-ARC_MARGIN_DEG = 5.0
-
-
 def _too_little_arc(kept, n_views: int, axis: np.ndarray | None) -> bool:
     """Whether the frames an update would read go so little round the chain (about `axis`, the last
     update's, where it saw the chain but too little of it) that it would measure nothing again."""
     if axis is None:
         return False
-    return arc_round_deg(spread(kept, n_views), axis) < MIN_ARC_DEG - ARC_MARGIN_DEG
+    return arc_round_deg(spread(kept, n_views), axis) < MIN_ARC_DEG
 
 
 def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Shared, res: LiveResult, on_update, say,
@@ -396,6 +390,8 @@ def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Share
             pred, arc_deg = estimate_and_arc(est, kept, n_views, process)
             axis = pred.T_world_profile if arc_deg is not None and arc_deg < MIN_ARC_DEG else None
             counted = counted or pred.n_links is not None
+            if axis is not None:  # still too little round it: the next try as soon as the frames go far enough
+                next_at = None
             views = _adapted(views, time.monotonic() - now, cfg)
             used_placed, last_full = placed, ended
             u = Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), n_views), received, placed, dropped)
