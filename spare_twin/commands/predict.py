@@ -56,6 +56,12 @@ def register(sub) -> None:
         help="image networks on recordings from other cameras only: rotations of the found object frame tried "
         "(4: every 90 deg, 2: +-x, 1: as found); the most confident output wins (default: 4)",
     )
+    p.add_argument(
+        "--outside-rig",
+        action="store_true",
+        help="image networks only: run one on a capture from other cameras than its training rig (a hand-held "
+        "sweep), which it refuses otherwise; a diagnostic of its sim-to-real gap, labelled so in the output",
+    )
     p.add_argument("--device", default="cpu", choices=["cpu", "cuda"])
     p.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     p.set_defaults(func=run)
@@ -75,6 +81,7 @@ def run(args) -> int:
         device="--device",
         model="--model",
         answer="--answer",
+        outside_rig="--outside-rig",
         parts="--parts",
     ):
         parts = read_parts(args.parts) if args.parts is not None else None
@@ -88,6 +95,7 @@ def run(args) -> int:
             args.device,
             yaw_hypotheses=args.yaw_hypotheses,
             answer=args.answer,
+            outside_rig=args.outside_rig,
             parts=parts,
         )
     if args.json:

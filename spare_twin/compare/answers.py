@@ -24,6 +24,7 @@ from spare_twin.config import LABEL_SLOTS, PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.metrics import length_errors
+from spare_twin.predict.images import CaptureRefused
 from spare_twin.predict.run import predict_recording
 
 #: The answer kinds before the networks: `predict`'s combined answer and the measurement alone.
@@ -107,13 +108,15 @@ def _refused(reason: str) -> dict:
 
 
 def _predict(rec: Path, model: str | None, answer: str, parts: PartDims | None = None):
-    """`predict_recording` and its wall time; (None, error) where it refuses the recording."""
+    """`predict_recording`, whether the model refused the kind of capture, and the wall time; (None,
+    error, refused, seconds) where it gave no prediction."""
     t0 = time.perf_counter()
     try:
         pred = predict_recording(rec, model, progress=False, answer=answer, parts=parts)
     except SpareTwinError as exc:  # the recording named by its own name: where it lies differs per run
-        return None, str(exc).replace(str(rec), rec.name), time.perf_counter() - t0
-    return pred, None, time.perf_counter() - t0
+        error = str(exc).replace(str(rec), rec.name)
+        return None, error, isinstance(exc, CaptureRefused), time.perf_counter() - t0
+    return pred, None, False, time.perf_counter() - t0
 
 
 def answers_of(
@@ -127,7 +130,7 @@ def answers_of(
     answers, times = {}, {}
     error = None
     if combined is None:
-        pred, error, times[COMBINED] = _predict(rec, combined_model.path, COMBINED, parts)
+        pred, error, _, times[COMBINED] = _predict(rec, combined_model.path, COMBINED, parts)
         combined = None if pred is None else pred.to_json()
     if combined is None:  # predict's own answer: a refusal is no answer
         answers[COMBINED], answers[MEASUREMENT] = _no_answer(f"error: {error}"), _no_answer(f"error: {error}")
@@ -137,11 +140,11 @@ def answers_of(
         if m.sha256 == combined_model.sha256 and combined is not None:
             answers[m.name] = _answer(combined, "network")
             continue
-        net, error, times[m.name] = _predict(rec, m.path, "network", parts)
-        if net is None and error.startswith((f"{rec.name}:", f"{rec.name}/")):  # about its content: no answer
-            answers[m.name] = _no_answer(f"error: {error}")
-        elif net is None:  # about the model and the kind of recording it reads
+        net, error, refused, times[m.name] = _predict(rec, m.path, "network", parts)
+        if refused:  # the kind of capture is not what the network reads
             answers[m.name] = _refused(error)
+        elif net is None:  # about its content (no overlap, no chain): no answer
+            answers[m.name] = _no_answer(f"error: {error}")
         elif net.n_links is None and net.input == "none":  # it read nothing: the recording is not its kind
             answers[m.name] = _refused(net.reason)
         else:

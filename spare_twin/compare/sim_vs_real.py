@@ -37,6 +37,7 @@ from spare_twin.nets import checkpoint as ckpt
 from spare_twin.object.folder import ObjectFolder, load_object
 from spare_twin.object.kinematics import printed_lengths_m
 from spare_twin.output import RRD, check_output
+from spare_twin.predict.images import capture_refusal
 from spare_twin.predict.run import predict_recording
 from spare_twin.recording import Camera, Recording, RecordingWriter
 from spare_twin.sim.twin import Twin
@@ -218,7 +219,10 @@ def compare(
     obj = load_object(object_dir)  # verifies the meshes: a broken STL would fit and render a wrong twin
     real = Recording.open(real_dir)
     model = model or ckpt.default_model("predict")
-    ckpt.load_model(model)  # a bad checkpoint is refused now, not after minutes of registration and fitting
+    _, net, ck = ckpt.load_model(model)  # a bad checkpoint is refused now, not after minutes of work
+    refusal = None if net.arch == "profile" else capture_refusal(real, ck["meta"].get("rig"), str(model), net.mode)
+    if refusal is not None:  # the real side would be refused after the registration and the fit
+        raise SpareTwinError(refusal)
     sim_dir = Path(sim_dir) if sim_dir else Path(real.root).with_name(Path(real.root).name + "_sim_twin")
     inputs = (object_dir, real.root, model)
     check_output(sim_dir, SIM_TWIN, inputs, force)

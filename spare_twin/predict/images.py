@@ -55,6 +55,11 @@ def to_batch(inputs: Sequence[NetworkInput]) -> dict:
     }
 
 
+class CaptureRefused(SpareTwinError):
+    """A network refuses a kind of capture it was not trained to read (`capture_refusal`); callers that
+    score many networks count it as refused, apart from an answer or no answer."""
+
+
 def capture_kind(rec: Recording) -> str:
     """The kind of capture `rec` is, in words: a rig's fixed cameras, or a moving camera."""
     if rec.rig is not None:
@@ -114,7 +119,7 @@ def predict_images(
     in_rig = rig is None or rec.rig == rig
     refusal = capture_refusal(rec, rig, model_name, net.mode)
     if refusal is not None and not outside_rig:
-        raise SpareTwinError(refusal + ", or --outside-rig to run it anyway as a diagnostic")
+        raise CaptureRefused(refusal + ", or --outside-rig to run it anyway as a diagnostic")
     outside = None if refusal is None else f"{capture_kind(rec)}; trained on the rig '{rig}'"
     measurement, obs, timings = None, None, {}
     if answer == "combined" and not in_rig:
@@ -157,9 +162,7 @@ def predict_images(
     network = network_estimate(res, best, net, n_links, *((yaws_deg, yaws_deg[best]) if several else (None, None)))
     network = note_parts(network, parts)  # the measurement above reads the given parts; the network never saw them
     if outside is not None and network.evidence is not None:
-        network = dataclasses.replace(
-            network, evidence=dataclasses.replace(network.evidence, outside_training=outside)
-        )
+        network = dataclasses.replace(network, evidence=dataclasses.replace(network.evidence, outside_training=outside))
     common.update(input=seen.method, network_input=batch["x"][best].numpy(), timings_s=timings)
     source = None if network.n_links is None else {f: "network" for f in FIELDS}
     return Prediction(network, source, network, measurement, **common)

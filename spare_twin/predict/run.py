@@ -90,6 +90,7 @@ def predict_recording(
     T_world_base: np.ndarray | None = None,
     camera_poses: dict | None = None,
     answer: str = "combined",
+    outside_rig: bool = False,
     parts: PartDims | None = None,
 ) -> Prediction:
     """`predict`'s answer for a recording folder. The profile model (the default) and the measurement
@@ -98,9 +99,10 @@ def predict_recording(
     `yaw_hypotheses`, `T_world_base`, `camera_poses`; `n_links` for a lengths-only model). Options
     that do not apply to the model or answer chosen are refused, but for `T_world_base` and
     `camera_poses` (`compare`'s twin-aligned diagnostic), which only posed image networks read: the
-    profile path finds the chain's base on the table itself. The print scale is `print_scale` or the
-    default, the printed parts `parts` (`predict.parts.read_parts`) or the defaults: the recording's
-    own object configuration is never read."""
+    profile path finds the chain's base on the table itself. An image network refuses a capture from
+    other cameras than its training rig unless `outside_rig` (a diagnostic). The print scale is
+    `print_scale` or the default, the printed parts `parts` (`predict.parts.read_parts`) or the
+    defaults: the recording's own object configuration is never read."""
     check_options(frame, print_scale, n_links, yaw_hypotheses, device, answer, parts)
     scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
     parts = parts or PartDims()
@@ -114,6 +116,8 @@ def predict_recording(
         why = "applies to image networks only (the profile network and the measurement have no yaw to guess)"
         _refuse(yaw_hypotheses, "yaw_hypotheses", why)
         _refuse(n_links, "n_links", "applies to lengths-only models only; this answer counts the links itself")
+        why = "applies to image networks only (the profile network reads any capture)"
+        _refuse(outside_rig or None, "outside_rig", why)
         rec = Recording.open(rec_dir)
         seen = recording_views(rec, frame, camera, progress=progress)
         name = str(model_path) if model_path else None
@@ -136,6 +140,7 @@ def predict_recording(
         yaw_hypotheses or 4,
         T_world_base,
         camera_poses,
+        outside_rig,
         parts=parts,
     )
 
