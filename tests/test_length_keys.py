@@ -180,3 +180,33 @@ def test_no_other_file_names_the_old_key():
     assert found <= MAY_NAME_THE_OLD_KEY, sorted(found - MAY_NAME_THE_OLD_KEY)
     config_lines = [ln for ln in (REPO / "spare_twin/config.py").read_text().splitlines() if word.search(ln)]
     assert [ln for ln in config_lines if not ln.startswith("#")] == [f'DESIGN_CONTRACT_LENGTHS_KEY = "{OLD}"']
+
+
+def test_a_dataset_sequence_of_either_release_gives_its_label_in_paper_units(tmp_path):
+    """Sequence files from 0.6.0 on store the 7-slot label as lengths_label_pu; older ones as
+    lengths_label_m (paper units all the same): the one reader gives the label of either."""
+    import h5py
+
+    from spare_twin.dataset.store import LABEL_KEY, OLD_LABEL_KEY, lengths_label_pu
+
+    label = np.array([1.5, 0.8, 0.7, 0, 0, 0, 0], np.float32)
+    for key in (LABEL_KEY, OLD_LABEL_KEY):
+        with h5py.File(tmp_path / f"{key}.h5", "w") as f:
+            f.create_dataset(key, data=label)
+        with h5py.File(tmp_path / f"{key}.h5", "r") as f:
+            assert lengths_label_pu(f).tolist() == label.tolist()
+    assert LABEL_KEY == "lengths_label_pu"
+
+
+def test_a_new_sequence_file_names_the_label_in_paper_units(tmp_path):
+    import h5py
+
+    from spare_twin.cli import main
+
+    assert main(["dataset", "--instances", "1", "--frames", "2", "--out", str(tmp_path / "d"), "--workers", "1"]) == 0
+    (shard,) = sorted((tmp_path / "d").rglob("*.h5"))[:1]
+    with h5py.File(shard, "r") as f:
+        assert "lengths_label_pu" in f and "lengths_label_m" not in f
+        assert f["lengths_label_pu"][: int(f.attrs["n_links"]) + 1].tolist() == pytest.approx(
+            f["link_lengths_pu"][()].tolist(), abs=1e-6
+        )

@@ -11,7 +11,7 @@ Schema (readable with plain h5py; V cameras, T frames, H x W pixels, n moving li
     joint_angles_rad   float64 (T, n)       joint k = column k - 1
     T_world_link       float64 (T, n + 1, 4, 4)  link frames (link 0 = base), world z up, table z = 0
     link_lengths_pu    float64 (n + 1,)     paper units, base first (physical = * attrs["print_scale"])
-    lengths_label_m    float32 (7,)         the paper's 7-slot label, zeros past the last link
+    lengths_label_pu   float32 (7,)         the paper's 7-slot label in paper units, zeros past the last link
 
 Attributes: format ("spare-twin-sequence/1"), index, dataset_seed, n_links, split, print_scale,
 depth_scale, fps, chain (the object.json ChainSpec as JSON), scene (lighting / colours / clutter as
@@ -20,7 +20,8 @@ filter: any single image is read by decompressing ~10 KB, and both the multi-vie
 one t) and temporal (100 frames of one camera) reads touch only the images they return.
 
 Files are byte-for-byte deterministic: no timestamps (track_times=False), fixed attribute order and
-the same library versions give the same bytes.
+the same library versions give the same bytes. Files from before 0.6.0 name the label
+`lengths_label_m` (paper units all the same); `lengths_label_pu` reads either.
 """
 
 from __future__ import annotations
@@ -69,7 +70,7 @@ def write_sequence(path: str | Path, seq, fps: float, compression_level: int = 1
                 "joint_angles_rad": np.asarray(seq.joint_angles_rad, np.float64),
                 "T_world_link": np.asarray(seq.T_world_link, np.float64),
                 "link_lengths_pu": np.asarray(seq.spec.link_lengths_pu, np.float64),
-                "lengths_label_m": seq.spec.label_lengths().astype(np.float32),
+                LABEL_KEY: seq.spec.label_lengths().astype(np.float32),
             }
             for key, arr in small.items():
                 f.create_dataset(key, data=arr, track_times=False)
@@ -91,6 +92,16 @@ def write_sequence(path: str | Path, seq, fps: float, compression_level: int = 1
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+#: The label's key, and its name in files from before 0.6.0 (a misnomer: the values were paper units).
+LABEL_KEY, OLD_LABEL_KEY = "lengths_label_pu", "lengths_label_m"
+
+
+def lengths_label_pu(f) -> np.ndarray:
+    """float32 (7,) the paper's length label of an open sequence file, in paper units, whichever
+    release wrote it."""
+    return f[LABEL_KEY if LABEL_KEY in f else OLD_LABEL_KEY][()]
 
 
 #: The small arrays of a sequence file and their leading dimensions (V cameras, T frames).

@@ -29,6 +29,7 @@ from torch.utils.data import Dataset, IterableDataset, get_worker_info
 from spare_twin.config import LABEL_SLOTS, MAX_MOVING_LINKS
 from spare_twin.dataset.build import load_manifest
 from spare_twin.dataset.generate import GenConfig, render_sequence
+from spare_twin.dataset.store import lengths_label_pu
 from spare_twin.errors import SpareTwinError
 from spare_twin.sim.noise import DepthNoise
 from spare_twin.sim.twin import Twin
@@ -211,7 +212,7 @@ class SpareDataset(Dataset):
             "n": int(f.attrs["n_links"]),
             "depth_scale": f.attrs["depth_scale"],
             "print_scale": f.attrs["print_scale"],
-            "lengths": f["lengths_label_m"][()],
+            "lengths": lengths_label_pu(f),
         }
 
 

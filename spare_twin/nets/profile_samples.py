@@ -30,6 +30,7 @@ import h5py
 import numpy as np
 
 from spare_twin.config import MAX_MOVING_LINKS
+from spare_twin.dataset.store import lengths_label_pu
 from spare_twin.measure.layers import LayerMeasurement, measure_profile
 from spare_twin.observe.chain import find_chain
 from spare_twin.observe.points import PosedView
@@ -153,7 +154,7 @@ def stored_sample(
         f["T_world_link"][t, 0],
         f["joint_angles_rad"][t],
         int(f.attrs["n_links"]),
-        f["lengths_label_m"][()],
+        lengths_label_pu(f),
         float(f.attrs["print_scale"]),
         aug,
         rng,
