@@ -148,11 +148,16 @@ def test_observation_is_deterministic(rig_rec):
     assert np.array_equal(a.T_world_profile, b.T_world_profile)
 
 
-def test_a_sweep_that_does_not_fuse_as_a_whole_is_measured_from_a_part(printed_object, tmp_path):
+def test_a_sweep_that_does_not_fuse_as_a_whole_is_measured_from_a_part(printed_object, tmp_path, monkeypatch):
     """A hand-held sweep without poses whose second half sees the object in another pose (it was
     bumped halfway round): fused whole it is two chains and gives none; `measured_chain` registers
-    its parts alone and measures the chain from the part that holds one."""
+    its parts alone and measures the chain from the part that holds one. (The points one half sees
+    through are dropped since `observe.clean`, which leaves the whole one chain here; switched off, so
+    that the whole stays two chains, as when the two poses overlap more.)"""
     from spare_twin.cli import main
+    from spare_twin.observe import points
+
+    monkeypatch.setattr(points, "seen_through", lambda p, *args: np.zeros(len(p), bool))
 
     sweep = ["--path", "handheld", "--noise", "realsense_sr300", "--resolution", "320x240", "--frames", "12"]
     for seed in (1, 2):  # each seed holds the chain in its own pose
@@ -213,8 +218,8 @@ def test_views_that_slipped_are_brought_into_register_on_the_object(handheld_rec
 
 def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(handheld_rec, monkeypatch):
     """A sweep registered here whose views slipped along the table (up to 2 deg, 6 mm) fuses into a
-    chain of the wrong count; `measured_chain` measures it with its views brought into register on the
-    object, and counts it right."""
+    chain of the wrong count (or, with the flying pixels removed, a blurred one); `measured_chain`
+    measures it with its views brought into register on the object, and counts it right."""
     import types
 
     from spare_twin.observe import views
@@ -230,7 +235,8 @@ def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(han
 
     as_registered = observe_chain(rec, PRINT_SCALE)
     assert as_registered.source == "sweep, registered"
-    assert measure_profile(as_registered.object, as_registered.profile, PRINT_SCALE).n_links != 2
+    blurred = measure_profile(as_registered.object, as_registered.profile, PRINT_SCALE)
+    assert blurred.n_links != 2 or blurred.rms_m > 0.005  # a wrong count, or the right one 10 mm RMS off it
     seen, measured = measured_chain(rec, PRINT_SCALE)
     assert measured.n_links == 2 and measured.rms_m < 0.002
     assert seen.source == "sweep, registered, brought into register on the object" and seen.views == rec.n_frames

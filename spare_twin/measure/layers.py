@@ -251,7 +251,10 @@ def measure_layers(
         labels_n = np.clip(labels, 0, n)
         layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
         x, rms = fit_layers(layers, n, cfg)
-        if n == 1 or not _top_layer_is_stray(x, layers, centre_layers[labels_n == n], n, cfg):
+        top, parent = centre_layers[labels_n == n], centre_layers[labels_n == n - 1]
+        if n == 1 or not (
+            _top_layer_is_stray(x, layers, top, n, cfg) or _top_layer_is_tilted_parent(layers, top, parent, n)
+        ):
             break
         n -= 1
     if rms > cfg.max_rms_m:
@@ -277,6 +280,32 @@ def _top_layer_is_stray(
     top = layers[n]
     inside = distance_to_segment(top, starts[n - 1], ends[n - 1]) <= cfg.half_width_m + cfg.coverage_tolerance_m
     return bool(inside.mean() >= cfg.max_top_inside_parent)
+
+
+#: Where the top layer's points meet their parent's (within this, in the plane), plate centres that
+#: step up by less than this many layers run on from the parent's: one plate tilted out of its layer.
+MAX_TILT_STEP_LAYERS = 0.35
+TILT_CONTACT_M = 0.009
+
+
+def _top_layer_is_tilted_parent(
+    layers: list[np.ndarray], top_centres: np.ndarray, parent_centres: np.ndarray, n: int
+) -> bool:
+    """Whether the top layer is the far end of its parent's plate, tilted out of its layer by the
+    joint's play, not a link. A printed pin joint lets a link lean 1-4 deg out of the chain's plane
+    about its own joint: a 54 mm link's tip ends 3-4 mm (half a layer or more) off its layer, and the
+    rounding cuts the plate in two (bench seed 30009, 4 links counted 5). A real link meets its
+    parent at a joint a whole layer up: where the two layers' points meet, their plate centres step
+    by about one layer; a tilted plate's run on across the half-way mark, a step of a fraction."""
+    top, parent = layers[n], layers[n - 1]
+    if min(len(top), len(parent)) < 5:
+        return False
+    near_parent = cKDTree(parent).query(top, distance_upper_bound=TILT_CONTACT_M)[0] < TILT_CONTACT_M
+    near_top = cKDTree(top).query(parent, distance_upper_bound=TILT_CONTACT_M)[0] < TILT_CONTACT_M
+    if min(near_parent.sum(), near_top.sum()) < 5:
+        return False
+    step = float(np.median(top_centres[near_parent]) - np.median(parent_centres[near_top]))
+    return step < MAX_TILT_STEP_LAYERS
 
 
 def measure_profile(

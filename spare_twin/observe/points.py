@@ -27,6 +27,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import ndimage
 
+from spare_twin.observe.clean import between_surfaces, seen_through
+
 
 @dataclass(frozen=True)
 class PosedView:
@@ -69,6 +71,15 @@ class PointsConfig:
     max_base_height_m: float = 0.03
     """The object's lowest point must be this close to the table: it stands on it."""
     seed: int = 0
+    depth_tolerance_m: float = 0.006
+    """Two readings of one surface lie within this plus `depth_tolerance_per_m2` z^2 of each other
+    (noise, a tracker's pose error); beyond, one is past the other (`observe.clean`)."""
+    depth_tolerance_per_m2: float = 0.006
+    remove_flying: bool = True
+    """Drop readings between two surfaces at a depth edge, and points other views see past
+    (`observe.clean`), before anything is fused."""
+    min_seen_through_views: int = 2
+    """A point goes when at least this many views (and more than agree with it) see past it."""
 
 
 @dataclass(frozen=True)
@@ -165,14 +176,30 @@ def _stride(v: PosedView, cfg: PointsConfig, fine: bool) -> int:
     return stride
 
 
-def read_view(v: PosedView, cfg: PointsConfig, fine: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
-    """(depth, K, world points, stride) of a view read at its stride (`_stride`): the strided depth
-    (0 = no reading or beyond `max_depth_m`), its intrinsics, its readings in the world (row-major)."""
+def strided_depth(v: PosedView, cfg: PointsConfig, fine: bool) -> tuple[np.ndarray, np.ndarray, int]:
+    """(depth, K, stride) of a view read at its stride (`_stride`): 0 = no reading or beyond `max_depth_m`."""
     stride = _stride(v, cfg, fine)
     depth = v.depth_m[::stride, ::stride]
     depth = np.where(depth < cfg.max_depth_m, depth, 0.0)
     K = np.asarray(v.K, np.float64).copy()
     K[:2] /= stride  # pixel i of the strided grid is pixel stride * i: centres stay on integers
+    return depth, K, stride
+
+
+def without_flying_pixels(v: PosedView, cfg: PointsConfig = PointsConfig()) -> PosedView:
+    """The view with its readings between two surfaces at a depth edge dropped (`clean.between_surfaces`
+    over 2 pixels either side, the flying pixels' band at 640 wide); the view itself where
+    `remove_flying` is off. Once per view, where views are made (`observe.views`)."""
+    if not cfg.remove_flying:
+        return v
+    flying = between_surfaces(v.depth_m, 2, cfg.depth_tolerance_m, cfg.depth_tolerance_per_m2)
+    return PosedView(np.where(flying, np.float32(0), v.depth_m).astype(np.float32), v.K, v.T_world_camera, v.rgb)
+
+
+def read_view(v: PosedView, cfg: PointsConfig, fine: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(depth, K, world points, stride) of a view read at its stride (`strided_depth`): the strided
+    depth, its intrinsics, its readings in the world (row-major)."""
+    depth, K, stride = strided_depth(v, cfg, fine)
     return depth, K, rigid(np.asarray(v.T_world_camera, np.float64), backproject(depth, K)), stride
 
 
@@ -310,6 +337,10 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
     points, colors, directions, normals = merged_cloud(views, cfg, keep=near_target)
     local = rigid(T_table_world, points)
     above = where_objects_stand(local, cfg)
+    if cfg.remove_flying and above.any():  # floaters seen through by other views join nothing
+        depths = [(*strided_depth(v, cfg, fine=True)[:2], v.T_world_camera) for v in views]
+        tol = (cfg.depth_tolerance_m, cfg.depth_tolerance_per_m2)
+        above[above] = ~seen_through(points[above], depths, *tol, cfg.min_seen_through_views)
     nothing = [_empty(T_world_table, len(points), "nothing stands on the table where the cameras look")]
     if above.sum() < cfg.min_cluster_points:
         return nothing

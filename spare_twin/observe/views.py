@@ -6,8 +6,12 @@
   because the object may move between frames;
 - one camera (a hand-held sweep round a still object): up to `max_frames` of its frames, spread over
   the sweep; its poses from the recording where it has them (a tracked camera, a registered copy),
-  otherwise registered here (`capture.registration.register_frames`), in memory: predict never
-  writes into the user's recording.
+  brought into register on the object from there (`observe.on_object.tracked_into_register`: a
+  tracker's poses are a few tenths of a degree and millimetres off), otherwise registered here
+  (`capture.registration.register_frames`), in memory: predict never writes into the user's recording.
+
+Every view's flying pixels (readings between two surfaces at a depth edge) are dropped as it is read
+(`observe.points.without_flying_pixels`), before registration or fusion sees them.
 
 A live stream or a dataset builds `PosedViews` itself and goes through the same code from there on.
 Nothing here reads the recording's object configuration or ground truth.
@@ -24,12 +28,16 @@ from spare_twin.capture.frames import RGBDFrame, load_frames
 from spare_twin.capture.registration import RegistrationConfig, register_frames
 from spare_twin.errors import SpareTwinError
 from spare_twin.observe.chain import ChainObservation, observe_views
-from spare_twin.observe.points import PointsConfig, PosedView
+from spare_twin.observe.clean import between_surfaces
+from spare_twin.observe.on_object import tracked_into_register
+from spare_twin.observe.points import PointsConfig, PosedView, without_flying_pixels
 from spare_twin.observe.profile import ProfileConfig
 from spare_twin.recording import Recording
 
 #: `PosedViews.source` of a sweep whose poses were registered here.
 REGISTERED_SWEEP = "sweep, registered"
+#: `PosedViews.source` of a sweep with its own (a tracker's) poses, brought into register on the object here.
+TRACKED_SWEEP = "sweep, tracked poses brought into register on the object"
 
 
 @dataclass(frozen=True)
@@ -38,8 +46,9 @@ class PosedViews:
 
     views: tuple[PosedView, ...]
     source: str
-    """"cameras" (every posed camera at one frame), "sweep" (one camera's posed frames) or
-    `REGISTERED_SWEEP` (one camera's frames, poses estimated here)."""
+    """"cameras" (every posed camera at one frame), "sweep" (one camera's posed frames, as given),
+    `TRACKED_SWEEP` (one camera's posed frames, brought into register here) or `REGISTERED_SWEEP`
+    (one camera's frames, poses estimated here)."""
     registration_s: float = 0.0
     """Seconds spent estimating the poses."""
     frames: tuple[RGBDFrame, ...] | None = None
@@ -47,6 +56,16 @@ class PosedViews:
     on its own (`sweep_part`)."""
     frames_in_recording: int | None = None
     """How many frames the source has (a sweep's views are a sample of them)."""
+
+
+def _without_flying_pixels(fr: RGBDFrame, cfg: PointsConfig = PointsConfig()) -> RGBDFrame:
+    """The frame with its flying pixels dropped (`points.without_flying_pixels`), before registration
+    matches it: a halo in the air round every edge is no surface to match."""
+    if not cfg.remove_flying:
+        return fr
+    depth_m = fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale)
+    flying = between_surfaces(depth_m, 2, cfg.depth_tolerance_m, cfg.depth_tolerance_per_m2)
+    return RGBDFrame(fr.color, np.where(flying, np.uint16(0), fr.depth_u16), fr.depth_scale, fr.K)
 
 
 def _registered(frames: list[RGBDFrame], progress: bool) -> tuple[list[PosedView], float]:
@@ -76,7 +95,10 @@ def recording_views(
             raise SpareTwinError(f"{rec.root}: {len(rec.cameras) - len(posed)} of its cameras have no poses")
         f = rec.n_frames // 2 if frame is None else frame
         views = [
-            PosedView(rec.depth_m(c.name, f), c.K, rec.T_world_camera(c.name, f), rec.color(c.name, f)) for c in posed
+            without_flying_pixels(
+                PosedView(rec.depth_m(c.name, f), c.K, rec.T_world_camera(c.name, f), rec.color(c.name, f))
+            )
+            for c in posed
         ]
         return PosedViews(tuple(views), "cameras", frames_in_recording=rec.n_frames)
     cam = rec.camera(camera or rec.cameras[0].name)
@@ -90,11 +112,16 @@ def recording_views(
     if poses is None:
         if len(picks) < 2:
             raise SpareTwinError(f"{rec.root}: one frame and no camera pose; nothing to register")
-        frames = load_frames(rec, cam.name, picks)
+        frames = [_without_flying_pixels(fr) for fr in load_frames(rec, cam.name, picks)]
         views, seconds = _registered(frames, progress)
         return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
-    views = [PosedView(rec.depth_m(cam.name, f), cam.K, poses[f], rec.color(cam.name, f)) for f in picks]
-    return PosedViews(tuple(views), "sweep", frames_in_recording=rec.n_frames)
+    views = [
+        without_flying_pixels(PosedView(rec.depth_m(cam.name, f), cam.K, poses[f], rec.color(cam.name, f)))
+        for f in picks
+    ]
+    t0 = time.perf_counter()
+    views = tracked_into_register(views)  # a tracker's poses are approximate
+    return PosedViews(tuple(views), TRACKED_SWEEP, time.perf_counter() - t0, frames_in_recording=rec.n_frames)
 
 
 def sweep_part(seen: PosedViews, part: tuple[float, float], progress: bool = False) -> PosedViews:
