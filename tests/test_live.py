@@ -110,6 +110,18 @@ def test_a_full_queue_drops_its_oldest_frame():
     assert [q.get_nowait(), q.get_nowait()] == [3, 4] and sh.dropped == 3  # the tracker takes the newest
 
 
+def test_the_tracker_lets_go_frames_the_camera_has_barely_moved_from():
+    from spare_twin.live.track import MAX_GAP_S, MIN_STEP_DEG, Tracker
+
+    tr = Tracker(np.eye(3), 0.001)
+    assert not tr.too_close(0.01)  # nothing placed yet: no rate to judge by
+    tr._rate, tr._last_t_s = (40.0, 0.1), 1.0  # turning 40 deg/s, moving 0.1 m/s
+    assert tr.too_close(1.0 + 0.9 * MIN_STEP_DEG / 40.0)  # not yet MIN_STEP_DEG turned
+    assert not tr.too_close(1.0 + 1.1 * MIN_STEP_DEG / 40.0)
+    tr._rate = (0.0, 0.0)  # standing still: placed again after MAX_GAP_S all the same
+    assert tr.too_close(1.0 + 0.9 * MAX_GAP_S) and not tr.too_close(1.0 + MAX_GAP_S)
+
+
 def test_no_update_while_the_frames_go_too_little_round_the_chain():
     from spare_twin.live.session import _too_little_arc
     from spare_twin.live.track import PlacedFrame

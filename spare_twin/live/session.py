@@ -260,12 +260,17 @@ def run_live(
         if process is not None:
             process.close()
             res.estimate_process_rss_mb = process.peak_rss_mb
-    res.frames_received, res.frames_dropped, res.frames_placed = sh.received, sh.dropped, tracker.placed
+    # dropped from the estimate: by the full queue, or let go by the tracker as too little moved
+    res.frames_received, res.frames_dropped, res.frames_placed = (
+        sh.received,
+        sh.dropped + tracker.skipped,
+        tracker.placed,
+    )
     res.stream_s = sh.last_t_s
     res.stream_wall_s = 0.0 if sh.t0_wall is None else sh.last_wall - sh.t0_wall
     pred = final_estimate(est, out)
     picked = min(res.frames_received, 60)  # predict's own pick of a sweep's frames
-    final = Update(pred, sh.last_t_s, _wall(sh), picked, sh.received, tracker.placed, sh.dropped, final=True)
+    final = Update(pred, sh.last_t_s, _wall(sh), picked, sh.received, tracker.placed, res.frames_dropped, final=True)
     res.final = final
     on_update(final)
     if view is not None:
@@ -374,7 +379,8 @@ def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Share
         while not sh.stop.is_set():
             ended = sh.tracked.is_set()  # read before the snapshot: then every frame placed is in it
             with sh.lock:
-                kept, placed, received, dropped = list(tracker.kept), tracker.placed, sh.received, sh.dropped
+                kept, placed, received = list(tracker.kept), tracker.placed, sh.received
+                dropped = sh.dropped + tracker.skipped
             if ended and (last_full or len(kept) < 2):
                 return
             now = time.monotonic()
