@@ -10,10 +10,15 @@ depth views (`PosedView`); nothing here asks where they came from:
 2. the table: the dominant plane (seeded RANSAC over the merged cloud, refined by least squares),
    its normal turned towards the cameras; the table frame has z up along that normal and z = 0 on
    the table;
-3. the object: points between `min_height_m` and `max_height_m` above the table, split into
-   connected components on a `cluster_cell_m` grid; the component that stands on the table
-   (lowest point within `max_base_height_m`) nearest the point the cameras look at is the object;
-   everything else (clutter, walls, the table's edge) is dropped.
+3. the object: points between `min_height_m` and `max_height_m` above the table, less those that
+   other views see past (`observe.clean.seen_through`: flying pixels and floaters, which otherwise
+   join a chain to the clutter beside it), split into connected components on a `cluster_cell_m`
+   grid; the component that stands on the table (lowest point within `max_base_height_m`) nearest
+   the point the cameras look at is the object; everything else (clutter, walls, the table's edge)
+   is dropped.
+
+A view's own flying pixels (readings between two surfaces at a depth edge) are dropped once, where
+views are made (`without_flying_pixels`, called by `observe.views`).
 
 Everything is numpy with a seeded generator, so the same views give the same points, bit for bit.
 open3d's plane RANSAC and DBSCAN are not used here because their threaded loops do not promise
