@@ -11,7 +11,7 @@ import pytest
 from scipy.spatial import cKDTree
 
 from spare_twin.measure import fit
-from spare_twin.measure.layers import LayersConfig, measure_layers, measure_profile
+from spare_twin.measure.layers import LayersConfig, grouped_medians, measure_layers, measure_profile
 from spare_twin.observe.chain import find_chain
 from spare_twin.observe.points import PosedView, object_points
 from spare_twin.observe.views import observe_chain
@@ -302,3 +302,15 @@ def test_the_fit_is_the_one_with_a_numeric_jacobian(lengths, angles, monkeypatch
     assert np.abs(x_closed[: n + 2] - x_numeric[: n + 2]).max() < 5e-5
     assert np.degrees(np.abs(x_closed[n + 2 :] - x_numeric[n + 2 :])).max() < 0.1
     assert abs(rms_closed - rms_numeric) < 5e-5
+
+
+def test_grouped_medians_are_numpys_to_the_bit():
+    """The labels' neighbourhood medians, all at once, are `np.median` of each neighbourhood exactly:
+    odd and even sizes, ties, groups in any order and sharing members (as query_ball_point's are)."""
+    rng = np.random.default_rng(7)
+    values = np.round(rng.normal(0.0, 0.01, 300), 5)  # rounded: ties
+    groups = [list(rng.choice(300, size=int(rng.integers(1, 40)), replace=False)) for _ in range(500)]
+    expected = np.array([np.median(values[g]) for g in groups])
+    assert np.array_equal(grouped_medians(values, groups), expected)
+    assert len({len(g) % 2 for g in groups}) == 2
+    assert grouped_medians(values, []).shape == (0,)
