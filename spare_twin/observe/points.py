@@ -119,7 +119,11 @@ def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = No
 
 
 def rigid(T: np.ndarray, p: np.ndarray) -> np.ndarray:
-    return p @ T[:3, :3].T + T[:3, 3]
+    """T (4x4) applied to points p (N, 3), written out column by column: a BLAS product of (N, 3) by
+    (3, 3) took 50-80 ms for a 640 x 480 view's 300,000 readings on the shared 2-core machine, this
+    13 ms (and its sums have a fixed order)."""
+    R = T[:3, :3]
+    return p[:, 0:1] * R[:, 0] + p[:, 1:2] * R[:, 1] + p[:, 2:3] * R[:, 2] + T[:3, 3]
 
 
 def depth_normals(depth_m: np.ndarray, K: np.ndarray, max_step_m: float = 0.01, origin=(0, 0)) -> np.ndarray:
