@@ -52,6 +52,46 @@ def stderr_lines(stderr: str) -> list[str]:
     return [ln.split("\r")[-1] for ln in stderr.split("\n") if ln.split("\r")[-1].strip()]
 
 
+def interrupt_pool(argv: list[str], cwd: Path, env: dict | None = None, workers_wanted: int = 2) -> tuple[int, str]:
+    """Run `argv`, send SIGINT to its whole process group (a terminal's Ctrl-C) once its pool of
+    `workers_wanted` spawned workers is up, and return (exit code, stderr) after checking that no
+    worker outlived it."""
+    import signal
+    import subprocess
+    import time
+
+    def children(pid: int) -> list[int]:
+        return [int(c) for task in Path(f"/proc/{pid}/task").iterdir() for c in (task / "children").read_text().split()]
+
+    proc = subprocess.Popen(
+        argv, cwd=cwd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+    try:
+        deadline = time.monotonic() + 120
+        workers: list[int] = []
+        while time.monotonic() < deadline and proc.poll() is None:
+            # the pool's workers are spawned python processes (a resource tracker is one child more)
+            workers = [c for c in children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
+            if len(workers) == workers_wanted:
+                break
+            time.sleep(0.1)
+        assert len(workers) == workers_wanted, f"the pool of {workers_wanted} never started"
+        time.sleep(0.5)  # the workers are importing or working: either way they must stay quiet
+        os.killpg(proc.pid, signal.SIGINT)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    for pid in workers:
+        for _ in range(50):
+            if not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]:
+                break
+            time.sleep(0.1)
+        else:
+            pytest.fail(f"worker {pid} outlived the interrupted run")
+    return proc.returncode, err
+
+
 def run_cli(argv, capsys):
     """Run `spare-twin ARGV` in-process; returns (exit code, stdout, stderr)."""
     from spare_twin.cli import main

@@ -5,14 +5,10 @@ order and bytes whatever the number of workers, and a Ctrl-C stops the pool quie
 from __future__ import annotations
 
 import os
-import signal
-import subprocess
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import REPO, stderr_lines
+from conftest import REPO, interrupt_pool, stderr_lines
 
 from spare_twin.cli import main
 from spare_twin.nets.profile_train import observe_split
@@ -39,13 +35,6 @@ def test_the_split_is_the_same_whatever_the_workers(two_test_sequences):
         assert np.array_equal(alone[k], pooled[k]), k
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        out += [int(c) for c in (task / "children").read_text().split()]
-    return out
-
-
 @pytest.mark.skipif(len(os.sched_getaffinity(0)) < 2, reason="evaluate observes in one process on one core")
 def test_ctrl_c_stops_the_observing_pool_quietly(two_test_sequences, tmp_path):
     """SIGINT to the whole process group (a terminal's Ctrl-C) while the pool observes: one line,
@@ -53,33 +42,9 @@ def test_ctrl_c_stops_the_observing_pool_quietly(two_test_sequences, tmp_path):
     cache = tmp_path / "cache"
     env = {**os.environ, "XDG_CACHE_HOME": str(cache)}
     argv = [SPARE_TWIN, "evaluate", "--data", str(two_test_sequences), "--device", "cpu", "--json"]
-    proc = subprocess.Popen(
-        argv, cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
-    )
-    try:
-        deadline = time.monotonic() + 120
-        workers: list[int] = []
-        while time.monotonic() < deadline and proc.poll() is None:
-            workers = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
-            if len(workers) == 2:
-                break
-            time.sleep(0.1)
-        assert len(workers) == 2, "the pool of 2 never started"
-        time.sleep(0.5)  # the workers are importing or observing: either way they must stay quiet
-        os.killpg(proc.pid, signal.SIGINT)
-        _, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 130, err
+    code, err = interrupt_pool(argv, tmp_path, env)
+    assert code == 130, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     said = [ln for ln in stderr_lines(err) if not ln.startswith("observe test:")]  # the progress bar's last state
     assert said == ["spare-twin evaluate: interrupted"], said
-    for pid in workers:
-        for _ in range(50):
-            if not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]:
-                break
-            time.sleep(0.1)
-        else:
-            pytest.fail(f"worker {pid} outlived the interrupted run")
     assert not list(cache.rglob("*.npz"))

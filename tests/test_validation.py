@@ -10,14 +10,12 @@ import json
 import os
 import shutil
 import signal
-import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 from capture_helpers import APC, seven_scenes
-from conftest import REPO, run_cli, stderr_lines, tree
+from conftest import REPO, interrupt_pool, run_cli, stderr_lines, tree
 
 from spare_twin.errors import SpareTwinError
 
@@ -415,48 +413,15 @@ def test_cap_workers_says_why_once(capsys, monkeypatch):
     assert err == ["note: workers 40: using 2 (2 to do)", "note: workers 500: using 16 (16 cores)"]
 
 
-def _children(pid: int) -> list[int]:
-    out = []
-    for task in Path(f"/proc/{pid}/task").iterdir():
-        text = (task / "children").read_text().split()
-        out += [int(c) for c in text]
-    return out
-
-
 def test_ctrl_c_stops_the_worker_pool_quietly(tmp_path):
     """SIGINT to the whole process group, as a terminal's Ctrl-C sends it, with a pool of 2 rendering:
     one line, exit 130, no worker traceback, no process left."""
     argv = [SPARE_TWIN, "dataset", "--out", "data", "--instances", "8", "--frames", "40", "--workers", "2"]
-    proc = subprocess.Popen(
-        argv, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
-    )
-    try:
-        deadline = time.monotonic() + 60
-        workers: list[int] = []
-        while time.monotonic() < deadline and proc.poll() is None:
-            # the pool's workers are spawned python processes (a resource tracker is one child more)
-            workers = [c for c in _children(proc.pid) if b"spawn_main" in Path(f"/proc/{c}/cmdline").read_bytes()]
-            if len(workers) == 2:
-                break
-            time.sleep(0.1)
-        assert len(workers) == 2, "the pool of 2 never started"
-        time.sleep(0.5)  # the workers are importing or rendering: either way they must stay quiet
-        os.killpg(proc.pid, signal.SIGINT)
-        out, err = proc.communicate(timeout=60)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-    assert proc.returncode == 130, err
+    code, err = interrupt_pool(argv, tmp_path)
+    assert code == 130, err
     assert "Traceback" not in err and "KeyboardInterrupt" not in err, err
     said = [ln for ln in stderr_lines(err) if not ln.startswith("dataset data:")]  # the progress bar's last state
     assert said == ["spare-twin dataset: interrupted"], said
-    for pid in workers:
-        for _ in range(50):
-            if not Path(f"/proc/{pid}").exists() or "Z" in Path(f"/proc/{pid}/stat").read_text().split()[2]:
-                break
-            time.sleep(0.1)
-        else:
-            pytest.fail(f"worker {pid} outlived the interrupted run")
 
 
 def test_pool_workers_leave_ctrl_c_to_the_driver():

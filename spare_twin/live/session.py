@@ -43,6 +43,7 @@ from spare_twin.output import check_output
 from spare_twin.predict.abstain import MIN_ARC_DEG
 from spare_twin.predict.estimate import Prediction
 from spare_twin.recording import Camera, RecordingWriter
+from spare_twin.validate import check_whole
 
 #: The command whose output the recording is (its output marker).
 LIVE = "live"
@@ -84,9 +85,7 @@ class LiveConfig:
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise SpareTwinError(f"{name} {v!r}: must be a positive number of seconds")
         for name, least in (("queue_frames", 1), ("views", 2), ("start_views", 2), ("work_width", 32), ("max_kept", 4)):
-            v = getattr(self, name)
-            if not isinstance(v, int) or isinstance(v, bool) or v < least:
-                raise SpareTwinError(f"{name} {v!r}: must be a whole number of at least {least}")
+            check_whole(name, getattr(self, name), least)
 
 
 @dataclass(frozen=True)
