@@ -170,6 +170,7 @@ C = Case
 R = " --frames 1 --resolution 32x24"  # renders that are accepted stay short
 D = " --instances 1 --frames 1"
 M = " --model {model}"
+MP = M + " --outside-rig"  # the image network on hand-held recordings, which it refuses otherwise
 TRAIN = "train --config cfg.json --data syn --out run --epochs 1"
 COLOR1, DEPTH1 = "rec/cameras/cam0/color/000001.png", "rec/cameras/cam0/depth/000001.png"
 
@@ -320,27 +321,27 @@ CASES = [
     C("evaluate-out-user-folder", "evaluate --data syn --out mine" + M, "mine", lambda w: (syn(w), w.folder())),
     C("evaluate-out-is-the-data", "evaluate --data syn --out syn" + M, "syn", syn),
     # predict
-    C("predict-recording-missing", "predict nowhere" + M, "nowhere"),
-    C("predict-recording-empty-folder", "predict empty" + M, "empty", lambda w: w.empty()),
-    C("predict-recording-json-corrupt", "predict rec" + M, "recording.json",
+    C("predict-recording-missing", "predict nowhere" + MP, "nowhere"),
+    C("predict-recording-empty-folder", "predict empty" + MP, "empty", lambda w: w.empty()),
+    C("predict-recording-json-corrupt", "predict rec" + MP, "recording.json",
       lambda w: (rec(w), w.file("rec/recording.json", "{"))),
-    C("predict-recording-json-no-cameras", "predict rec" + M, "recording.json",
+    C("predict-recording-json-no-cameras", "predict rec" + MP, "recording.json",
       lambda w: (rec(w), w.edit_json("rec/recording.json", cameras=...))),
-    C("predict-recording-json-frames-string", "predict rec" + M, "recording.json|frames",
+    C("predict-recording-json-frames-string", "predict rec" + MP, "recording.json|frames",
       lambda w: (rec(w), w.edit_json("rec/recording.json", frames="three"))),
-    C("predict-depth-zero-size", "predict rec" + M, "000001.png", lambda w: (rec(w), w.truncate(DEPTH1, 0))),
-    C("predict-depth-truncated", "predict rec" + M, "000001.png", lambda w: (rec(w), w.truncate(DEPTH1))),
-    C("predict-depth-wrong-size", "predict rec" + M, "000001.png",
+    C("predict-depth-zero-size", "predict rec" + MP, "000001.png", lambda w: (rec(w), w.truncate(DEPTH1, 0))),
+    C("predict-depth-truncated", "predict rec" + MP, "000001.png", lambda w: (rec(w), w.truncate(DEPTH1))),
+    C("predict-depth-wrong-size", "predict rec" + MP, "000001.png",
       lambda w: (rec(w), w.copy_file(str(TUM_PAIR / "1_depth.png"), DEPTH1))),
     C("predict-model-garbage", "predict rec --model bad.pt", "bad.pt", lambda w: (rec(w), w.garbage_model())),
     C("predict-model-missing", "predict rec --model nope.pt", "nope.pt", rec),
-    C("predict-frame-out-of-range", "predict rec --frame 99" + M, "--frame", rec),
-    C("predict-frame-negative", "predict rec --frame -1" + M, "--frame", rec),
-    C("predict-camera-unknown", "predict rec --camera nosuch" + M, "nosuch", rec),
-    C("predict-n-links-zero", "predict rec --n-links 0" + M, "--n-links", rec),
-    C("predict-n-links-seven", "predict rec --n-links 7" + M, "--n-links", rec),
-    C("predict-print-scale-zero", "predict rec --print-scale 0" + M, "--print-scale", rec),
-    C("predict-print-scale-negative", "predict rec --print-scale -0.1" + M, "--print-scale", rec),
+    C("predict-frame-out-of-range", "predict rec --frame 99" + MP, "--frame", rec),
+    C("predict-frame-negative", "predict rec --frame -1" + MP, "--frame", rec),
+    C("predict-camera-unknown", "predict rec --camera nosuch" + MP, "nosuch", rec),
+    C("predict-n-links-zero", "predict rec --n-links 0" + MP, "--n-links", rec),
+    C("predict-n-links-seven", "predict rec --n-links 7" + MP, "--n-links", rec),
+    C("predict-print-scale-zero", "predict rec --print-scale 0" + MP, "--print-scale", rec),
+    C("predict-print-scale-negative", "predict rec --print-scale -0.1" + MP, "--print-scale", rec),
     # capture import
     C("import-out-is-the-source", f"capture import tum --layout tum --intrinsics {TUM_K} --out tum", "tum",
       lambda w: w.copy("tum")),
@@ -573,7 +574,7 @@ NATURAL_JSON = {
     "capture-register-tiny": ("capture register rec --loop-gaps 2 --global-init always --json", rec),
     # two real frames with no poses: predict registers them itself
     "predict-real-frames": (
-        "predict real --json" + M,
+        "predict real --json" + MP,
         lambda w: main(
             ["capture", "import", w.copy("tum", "raw"), "--layout", "tum", "--intrinsics", TUM_K, "--out", "real"]
         ),
@@ -626,7 +627,7 @@ NOISY_LIBRARY = textwrap.dedent(
 #: Each --json command, and the library function it calls to do its work.
 INJECTED_JSON = {
     "object": ("spare_twin.object.folder:build_object", "object --links 1 --out o --no-preview --json", None),
-    "predict": ("spare_twin.predict.run:predict_recording", "predict rec --json" + M, rec),
+    "predict": ("spare_twin.predict.run:predict_recording", "predict rec --json" + MP, rec),
     "capture-import": (
         "spare_twin.capture.importers:import_folder",
         "capture import src --layout 7scenes --out r --json",

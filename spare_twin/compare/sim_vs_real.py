@@ -11,7 +11,9 @@
    printed with (`predict --parts`): what the user printed, never its lengths.
 5. A diagnostic (`real_twin_aligned`): the network once more on the real recording, its cameras
    re-aligned onto the fitted printed twin and its base frame taken from the fit. It needs the true
-   object, so it measures what the capture path costs, not what `predict` can do.
+   object, so it measures what the capture path costs, not what `predict` can do. The profile
+   network (the default) reads neither a placed base nor placed cameras: for it the diagnostic is the
+   real answer itself, and is not run twice.
 """
 
 from __future__ import annotations
@@ -220,14 +222,14 @@ def compare(
     real = Recording.open(real_dir)
     model = model or ckpt.default_model("predict")
     _, net, ck = ckpt.load_model(model)  # a bad checkpoint is refused now, not after minutes of work
-    refusal = None if net.arch == "profile" else capture_refusal(real, ck["meta"].get("rig"), str(model), net.mode)
-    if refusal is not None:  # the real side would be refused after the registration and the fit
-        raise SpareTwinError(refusal)
     sim_dir = Path(sim_dir) if sim_dir else Path(real.root).with_name(Path(real.root).name + "_sim_twin")
     inputs = (object_dir, real.root, model)
     check_output(sim_dir, SIM_TWIN, inputs, force)
     if rrd is not None:
         check_output(rrd, RRD, (*inputs, sim_dir), force)
+    refusal = None if net.arch == "profile" else capture_refusal(real, ck["meta"].get("rig"), str(model), net.mode)
+    if refusal is not None:  # the real side would be refused after the registration and the fit
+        raise SpareTwinError(refusal)
     timings: dict[str, float] = {}
     clock = _Clock(timings)
     if real.registration is None:
@@ -255,15 +257,18 @@ def compare(
         real_pred = predict_recording(real.root, model, progress=False, parts=obj.spec.parts)
         # The sim twin stands at its recording's origin by construction.
         sim_pred = predict_recording(sim_dir, model, progress=False, parts=obj.spec.parts)
-    with clock("twin-aligned diagnostic"):
-        aligned_pred = predict_recording(
-            real.root,
-            model,
-            progress=False,
-            T_world_base=T_world_base,
-            camera_poses=aligned_camera_poses(obj, real, fit, T_world_object, fitted),
-            parts=obj.spec.parts,
-        )
+    if net.arch == "profile":  # it reads no placed base or cameras: the diagnostic is the real answer itself
+        aligned_pred = real_pred
+    else:
+        with clock("twin-aligned diagnostic"):
+            aligned_pred = predict_recording(
+                real.root,
+                model,
+                progress=False,
+                T_world_base=T_world_base,
+                camera_poses=aligned_camera_poses(obj, real, fit, T_world_object, fitted),
+                parts=obj.spec.parts,
+            )
     gt = real.ground_truth()
     truth = Truth(
         obj.spec.n_links,
