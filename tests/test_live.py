@@ -122,10 +122,11 @@ def test_the_tracker_lets_go_frames_the_camera_has_barely_moved_from():
     assert tr.too_close(1.0 + 0.9 * MAX_GAP_S) and not tr.too_close(1.0 + MAX_GAP_S)
 
 
-def test_no_update_while_the_frames_go_too_little_round_the_chain():
-    from spare_twin.live.session import _too_little_arc
+def test_while_the_frames_go_too_little_round_the_chain_updates_say_so_without_measuring():
+    from spare_twin.live.session import _arc_short_of, _still_too_little
     from spare_twin.live.track import PlacedFrame
     from spare_twin.predict.abstain import MIN_ARC_DEG
+    from spare_twin.predict.estimate import Estimate, Prediction
 
     def frames(span_deg: float) -> list[PlacedFrame]:
         out = []
@@ -136,9 +137,26 @@ def test_no_update_while_the_frames_go_too_little_round_the_chain():
         return out
 
     axis = np.eye(4)
-    assert _too_little_arc(frames(MIN_ARC_DEG - 1), 8, axis)
-    assert not _too_little_arc(frames(MIN_ARC_DEG + 1), 8, axis)
-    assert not _too_little_arc(frames(10), 8, None)  # no chain seen yet: the update runs and looks
+    assert _arc_short_of(frames(45.0), 8, axis) == pytest.approx(45.0, abs=0.1)
+    assert _arc_short_of(frames(MIN_ARC_DEG + 1), 8, axis) is None
+    assert _arc_short_of(frames(10), 8, None) is None  # no chain seen yet: the update runs and looks
+
+    earlier = Prediction(Estimate.none("the views go 20 deg round it"), None, Estimate(2, (1.0, 0.5, 0.5), (0.1, 0.2)),
+                         Estimate.none("x"), "combined", "views", "m.pt", "rec", 0.08)  # fmt: skip
+    again = _still_too_little(earlier, 45.0)
+    assert again.n_links is None and again.answer.reason.startswith("the views go 45 deg round it")
+    assert again.network is None and again.measurement is None and again.source is None  # nothing ran
+
+
+def test_updates_start_early_enough_to_answer_within_update_s():
+    from spare_twin.live.session import POLL_S, UPDATE_MARGIN, LiveConfig, _adapted, _next_start
+
+    cfg = LiveConfig(update_s=1.0)
+    for took_s in (0.1, 0.3, 0.5, 0.6):
+        start = _next_start(10.0, took_s, cfg)  # the last answer came at 10 s after `took_s`
+        assert 10.0 <= start and start + UPDATE_MARGIN * took_s <= 10.0 + cfg.update_s - POLL_S + 1e-9
+    assert _next_start(10.0, 0.9, cfg) == 10.0  # as soon as it can: it takes nearly update_s
+    assert _adapted(8, 0.3, cfg) == 10 and _adapted(8, 0.9, cfg) == 6 and _adapted(8, 0.6, cfg) == 8
 
 
 def test_updates_read_few_views_until_the_first_count_and_all_at_the_end():

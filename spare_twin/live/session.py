@@ -40,8 +40,8 @@ from spare_twin.live.track import Tracker
 from spare_twin.live.worker import MeasureProcess
 from spare_twin.observe.chain import arc_round_deg
 from spare_twin.output import check_output
-from spare_twin.predict.abstain import MIN_ARC_DEG
-from spare_twin.predict.estimate import Prediction
+from spare_twin.predict.abstain import MIN_ARC_DEG, too_little_arc
+from spare_twin.predict.estimate import Estimate, Prediction
 from spare_twin.recording import Camera, RecordingWriter
 from spare_twin.validate import check_whole
 
@@ -63,8 +63,8 @@ class LiveConfig:
     """Frames waiting to be placed; more are dropped from the estimate (never from the recording)."""
     views: int = 16
     """The most placed frames an update reads (spread evenly over the stream so far). Updates start
-    with `start_views` and read 2 more while an update takes less than half of `update_s`, 2 fewer
-    (down to 4) while it takes longer than `update_s`: the rate holds on a busy machine and a quiet one
+    with `start_views` and read 2 more while an update takes less than 0.4 `update_s`, 2 fewer
+    (down to 4) while it takes more than 0.8 `update_s`: the rate holds on a busy machine and a quiet one
     reads more (on a 640 x 480 loop, 8 views measured within 0.015 pu of the truth, 16 within 0.007;
     an update of 8 took 1.2-2.4 s on the loaded 2-core machine, 16 twice that). The last update, once
     the stream has ended, reads `views`."""
@@ -338,11 +338,24 @@ MIN_VIEWS = 4
 
 def _adapted(views: int, took_s: float, cfg: LiveConfig) -> int:
     """The views the next update reads, after one that took `took_s` (`LiveConfig.views`)."""
-    if took_s < 0.5 * cfg.update_s:
+    if took_s < 0.4 * cfg.update_s:
         return min(cfg.views, views + 2)
-    if took_s > cfg.update_s:
+    if took_s > 0.8 * cfg.update_s:  # the next may take longer: keep the answers within update_s
         return max(min(MIN_VIEWS, cfg.views), views - 2)
     return views
+
+
+#: How long the estimator sleeps between looks at the tracker.
+POLL_S = 0.05
+#: An update may take this much longer than the one before it and still answer within `update_s`.
+UPDATE_MARGIN = 1.5
+
+
+def _next_start(finished: float, took_s: float, cfg: LiveConfig) -> float:
+    """When the next update starts: early enough that its answer comes within `update_s` of this one's,
+    if it takes up to `UPDATE_MARGIN` times as long (starting `update_s` after this one started gave
+    answers 1.00-1.08 s apart, median, for a 1 s goal)."""
+    return finished + max(0.0, cfg.update_s - UPDATE_MARGIN * took_s - POLL_S)
 
 
 def _views_for(views: int, ended: bool, counted: bool, cfg: LiveConfig) -> int:
@@ -356,24 +369,50 @@ def _views_for(views: int, ended: bool, counted: bool, cfg: LiveConfig) -> int:
     return views if counted else min(views, MIN_VIEWS)
 
 
-def _too_little_arc(kept, n_views: int, axis: np.ndarray | None) -> bool:
-    """Whether the frames an update would read go so little round the chain (about `axis`, the last
-    update's, where it saw the chain but too little of it) that it would measure nothing again."""
+def _arc_short_of(kept, n_views: int, axis: np.ndarray | None) -> float | None:
+    """How far round the chain (degrees, about `axis`, the last update's, where it saw the chain but
+    too little of it) the frames an update would read go, where that is too little for it to measure
+    anything but the same again; None otherwise."""
     if axis is None:
-        return False
-    return arc_round_deg(spread(kept, n_views), axis) < MIN_ARC_DEG
+        return None
+    arc_deg = arc_round_deg(spread(kept, n_views), axis)
+    return round(float(arc_deg), 1) if arc_deg < MIN_ARC_DEG else None
+
+
+def _still_too_little(pred: Prediction, arc_deg: float) -> Prediction:
+    """`pred` (an update that saw too little of the chain) said again for views that go `arc_deg` round
+    it: no estimator ran, the tracker's poses alone tell."""
+    return dataclasses.replace(pred, answer=Estimate.none(too_little_arc(arc_deg)), source=None, network=None,
+                               measurement=None, timings_s={})  # fmt: skip
 
 
 def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Shared, res: LiveResult, on_update, say,
                    view, process: MeasureProcess | None = None) -> None:  # fmt: skip
-    """The estimator thread: an update every `update_s` while new frames are placed, and a last one
-    from `views` placed frames once the tracker has ended. Until the frames go far enough round the
-    chain to tell its layers apart (`MIN_ARC_DEG`, `_too_little_arc`), no update is made: it would
-    only say so again, and on a busy machine it held the first estimate with a count back by a whole
-    update's time."""
+    """The estimator thread: an update at least every `update_s` while new frames are placed, and a
+    last one from `views` placed frames once the tracker has ended. Until the frames go far enough
+    round the chain to tell its layers apart (`MIN_ARC_DEG`, `_arc_short_of`), the updates say so
+    from the tracker's poses alone: measuring would only say it again, and on a busy machine a
+    measurement under way held the first estimate with a count back by a whole update's time."""
     used_placed, next_at, views, last_full = 0, None, min(cfg.start_views, cfg.views), False
     axis = None  # the chain's axis, while the views went too little round it to measure
     counted = False  # an update has given a count
+    said_at = 0.0  # monotonic seconds of the last update
+
+    def report(u: Update) -> None:
+        nonlocal said_at
+        said_at = time.monotonic()
+        res.updates.append(u)
+        if res.enough_at is None and is_strong(u.prediction) and held_for_s(res.updates) >= cfg.stable_s:
+            u = dataclasses.replace(u, enough=True)
+            res.updates[-1] = u
+            res.enough_at = u
+            say(enough_words(u))
+            if cfg.until_stable:
+                sh.stop.set()
+        on_update(u)
+        if view is not None:
+            view.show_update(u, tracker)
+
     try:
         while not sh.stop.is_set():
             ended = sh.tracked.is_set()  # read before the snapshot: then every frame placed is in it
@@ -385,33 +424,24 @@ def _estimate_loop(est: Estimator, tracker: Tracker, cfg: LiveConfig, sh: _Share
             now = time.monotonic()
             waiting = next_at is not None and now < next_at
             if not ended and (waiting or len(kept) < min(cfg.first_views, cfg.views) or placed == used_placed):
-                sh.stop.wait(0.05)
+                sh.stop.wait(POLL_S)
                 continue
             n_views = _views_for(views, ended, counted, cfg)
-            if not ended and _too_little_arc(kept, n_views, axis):
-                sh.stop.wait(0.05)
+            short_arc_deg = None if ended else _arc_short_of(kept, n_views, axis)
+            if short_arc_deg is not None:
+                if now - said_at >= cfg.update_s - POLL_S:
+                    pred = _still_too_little(res.updates[-1].prediction, short_arc_deg)
+                    report(Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), n_views), received, placed, dropped))
+                sh.stop.wait(POLL_S)
                 continue
-            next_at = now + cfg.update_s
             pred, arc_deg = estimate_and_arc(est, kept, n_views, process)
             axis = pred.T_world_profile if arc_deg is not None and arc_deg < MIN_ARC_DEG else None
             counted = counted or pred.n_links is not None
-            if axis is not None:  # still too little round it: the next try as soon as the frames go far enough
-                next_at = None
-            views = _adapted(views, time.monotonic() - now, cfg)
+            finished = time.monotonic()
+            next_at = None if axis is not None else _next_start(finished, finished - now, cfg)
+            views = _adapted(n_views, finished - now, cfg)  # from the views it read: the first read fewer
             used_placed, last_full = placed, ended
-            u = Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), n_views), received, placed, dropped)
-            res.updates.append(u)
-            strong = is_strong(pred)
-            if res.enough_at is None and strong and held_for_s(res.updates) >= cfg.stable_s:
-                u = dataclasses.replace(u, enough=True)
-                res.updates[-1] = u
-                res.enough_at = u
-                say(enough_words(u))
-                if cfg.until_stable:
-                    sh.stop.set()
-            on_update(u)
-            if view is not None:
-                view.show_update(u, tracker)
+            report(Update(pred, kept[-1].t_s, _wall(sh), min(len(kept), n_views), received, placed, dropped))
     except BaseException as err:  # handed to the calling thread
         sh.error = err
         sh.stop.set()

@@ -88,14 +88,16 @@ def note_parts(network: Estimate, parts: PartDims) -> Estimate:
     return dataclasses.replace(network, evidence=dataclasses.replace(network.evidence, other_parts=note))
 
 
+def too_little_arc(arc_deg: float) -> str:
+    """The reason for no answer from views that go `arc_deg` (< `MIN_ARC_DEG`) round the chain."""
+    return f"the views go {arc_deg:g} deg round it, too little to tell its layers apart (at least {MIN_ARC_DEG:g} deg)"
+
+
 def not_a_chain(obs: ChainObservation, m: LayerMeasurement) -> str | None:
     """Why the observed points are no chain to answer for, from the views and the measurement's
     evidence (for the network's estimate as for the measurement's: both read the same points), or None."""
     if obs.arc_deg is not None and obs.arc_deg < MIN_ARC_DEG:
-        return (
-            f"the views go {obs.arc_deg:g} deg round it, too little to tell its layers apart "
-            f"(at least {MIN_ARC_DEG:g} deg)"
-        )
+        return too_little_arc(obs.arc_deg)
     total = int(sum(m.points_per_layer))
     if total < MIN_CHAIN_POINTS:
         return f"too few points on the chain to count its links ({total}; at least {MIN_CHAIN_POINTS})"
