@@ -1,13 +1,16 @@
 """Fixtures shared by the test modules. Session-scoped: the expensive ones (a training run, a
-registered hand-held capture, tiny checkpoints) are made once per test session."""
+registered hand-held capture, tiny checkpoints) are made once per test run, and once for all of
+pytest-xdist's workers (`built_once`)."""
 
 import hashlib
 import json
 import os
+import pickle
 import shutil
 from pathlib import Path
 
 import pytest
+from filelock import FileLock
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -92,6 +95,27 @@ def interrupt_pool(argv: list[str], cwd: Path, env: dict | None = None, workers_
     return proc.returncode, err
 
 
+def built_once(tmp_path_factory, name: str, build):
+    """`build(empty_dir)`'s value, built by one process of the run: under pytest-xdist (the suite's
+    default, `-n logical`) the first worker that asks builds it in the run's shared temporary folder
+    while the others wait on a lock and read its pickled value. Built files are read, never changed,
+    by the tests."""
+    if os.environ.get("PYTEST_XDIST_WORKER") is None:
+        return build(tmp_path_factory.mktemp(name))
+    shared = tmp_path_factory.getbasetemp().parent / "built-once"
+    shared.mkdir(exist_ok=True)
+    value_file = shared / f"{name}.pickle"
+    with FileLock(str(shared / f"{name}.lock")):
+        if value_file.exists():
+            return pickle.loads(value_file.read_bytes())
+        folder = shared / name
+        shutil.rmtree(folder, ignore_errors=True)  # a build that failed in another worker
+        folder.mkdir()
+        value = build(folder)
+        value_file.write_bytes(pickle.dumps(value))
+        return value
+
+
 def run_cli(argv, capsys):
     """Run `spare-twin ARGV` in-process; returns (exit code, stdout, stderr)."""
     from spare_twin.cli import main
@@ -113,8 +137,10 @@ def object_dirs(tmp_path_factory):
     from spare_twin.config import sample_chain
     from spare_twin.object.folder import build_object
 
-    root = tmp_path_factory.mktemp("objects")
-    return {n: build_object(sample_chain(n, seed=100 + n), root / f"n{n}", preview=(n == 3)) for n in range(1, 7)}
+    def build(root):
+        return {n: build_object(sample_chain(n, seed=100 + n), root / f"n{n}", preview=(n == 3)) for n in range(1, 7)}
+
+    return built_once(tmp_path_factory, "objects", build)
 
 
 @pytest.fixture(scope="session")
@@ -123,7 +149,7 @@ def synthetic_data(tmp_path_factory):
     from spare_twin.dataset.synthetic import SyntheticSpec, write_synthetic
 
     spec = SyntheticSpec(sizes=(("train", 192), ("val", 64), ("test", 64)), seed=5)
-    return write_synthetic(tmp_path_factory.mktemp("syn"), spec)
+    return built_once(tmp_path_factory, "syn", lambda root: write_synthetic(root, spec))
 
 
 @pytest.fixture(scope="session")
@@ -131,14 +157,14 @@ def trained(synthetic_data, tmp_path_factory):
     """One CLI training run of TINY on `synthetic_data`, shared by the training and predict tests."""
     from spare_twin.cli import main
 
-    root = tmp_path_factory.mktemp("run")
-    cfg = root / "cfg.json"
-    cfg.write_text(json.dumps(TINY))
-    code = main(
-        ["train", "--config", str(cfg), "--data", str(synthetic_data), "--out", str(root / "run"), "--seed", "3"]
-    )
-    assert code == 0
-    return root / "run"
+    def build(root):
+        cfg = root / "cfg.json"
+        cfg.write_text(json.dumps(TINY))
+        argv = ["train", "--config", str(cfg), "--data", str(synthetic_data), "--out", str(root / "run")]
+        assert main([*argv, "--seed", "3"]) == 0
+        return root / "run"
+
+    return built_once(tmp_path_factory, "run", build)
 
 
 @pytest.fixture(scope="session")
@@ -147,30 +173,35 @@ def printed_object(tmp_path_factory):
     from spare_twin.config import sample_chain
     from spare_twin.object.folder import build_object
 
-    return build_object(sample_chain(2, seed=7), tmp_path_factory.mktemp("printed") / "obj", preview=False)
+    return built_once(
+        tmp_path_factory, "printed", lambda root: build_object(sample_chain(2, seed=7), root / "obj", preview=False)
+    )
+
+
+def _render(printed_object, tmp_path_factory, name: str, *flags: str) -> Path:
+    """`spare-twin render` of `printed_object` into a recording built once for the run."""
+    from spare_twin.cli import main
+
+    def build(root):
+        assert main(["render", str(printed_object.root), "--out", str(root / "rec"), *flags]) == 0
+        return root / "rec"
+
+    return built_once(tmp_path_factory, name, build)
 
 
 @pytest.fixture(scope="session")
 def handheld_rec(printed_object, tmp_path_factory):
     """`spare-twin render --path handheld --noise realsense_sr300`: FRAMES frames at RESOLUTION."""
-    from spare_twin.cli import main
-
-    out = tmp_path_factory.mktemp("handheld") / "rec"
-    argv = ["render", str(printed_object.root), "--out", str(out), "--path", "handheld", "--noise", "realsense_sr300"]
-    assert main([*argv, "--resolution", RESOLUTION, "--frames", str(FRAMES), "--seed", str(SEED)]) == 0
-    return out
+    flags = ("--path", "handheld", "--noise", "realsense_sr300", "--resolution", RESOLUTION)
+    return _render(printed_object, tmp_path_factory, "handheld", *flags, "--frames", str(FRAMES), "--seed", str(SEED))
 
 
 @pytest.fixture(scope="session")
 def sweep(printed_object, tmp_path_factory):
     """A hand-held sweep with its poses hidden, 16 frames at 320 x 240 (a sensor's stream): what `live`
     replays and `predict` must register itself."""
-    from spare_twin.cli import main
-
-    out = tmp_path_factory.mktemp("sweep") / "rec"
-    argv = ["render", str(printed_object.root), "--out", str(out), "--path", "handheld", "--hide-poses"]
-    assert main([*argv, "--frames", "16", "--resolution", "320x240", "--noise", "realsense_sr300", "--seed", "2"]) == 0
-    return out
+    flags = ("--path", "handheld", "--hide-poses", "--frames", "16", "--resolution", "320x240")
+    return _render(printed_object, tmp_path_factory, "sweep", *flags, "--noise", "realsense_sr300", "--seed", "2")
 
 
 @pytest.fixture(scope="session")
@@ -181,13 +212,16 @@ def registered_rec(handheld_rec, tmp_path_factory):
 
     from spare_twin.cli import main
 
-    out = tmp_path_factory.mktemp("registered") / "rec"
-    shutil.copytree(handheld_rec, out)
-    buf = io.StringIO()
-    argv = ["capture", "register", str(out), "--loop-gaps", "3", "--global-init", "never", "--voxel", "0.006"]
-    with redirect_stdout(buf), redirect_stderr(io.StringIO()):
-        assert main([*argv, "--object", "require", "--json"]) == 0
-    return out, json.loads(buf.getvalue())
+    def build(root):
+        out = root / "rec"
+        shutil.copytree(handheld_rec, out)
+        buf = io.StringIO()
+        argv = ["capture", "register", str(out), "--loop-gaps", "3", "--global-init", "never", "--voxel", "0.006"]
+        with redirect_stdout(buf), redirect_stderr(io.StringIO()):
+            assert main([*argv, "--object", "require", "--json"]) == 0
+        return out, json.loads(buf.getvalue())
+
+    return built_once(tmp_path_factory, "registered", build)
 
 
 @pytest.fixture(scope="session")
@@ -198,27 +232,24 @@ def tiny_models(tmp_path_factory):
     from spare_twin.nets.presets import resolve
     from spare_twin.nets.train import train
 
-    root = tmp_path_factory.mktemp("tiny")
-    data = write_synthetic(root / "syn", SyntheticSpec(sizes=(("train", 12), ("val", 6), ("test", 6)), seed=5))
-    cfg = {
-        "net": {"channels": [4, 8], "fc_hidden": 16, "dropout": 0.0},
-        "train": {"epochs": 1, "batch_size": 6, "samples_per_epoch": None, "val_samples": None, "threads": 1},
-    }
-    models = {}
-    for name, preset in (("geo", "geo-depth-mv-count"), ("conv3d", "conv3d-depth-mv-count")):
-        train(resolve(preset, cfg), data, root / name, progress=False)
-        models[name] = root / name / "model.pt"
-    return models
+    def build(root):
+        data = write_synthetic(root / "syn", SyntheticSpec(sizes=(("train", 12), ("val", 6), ("test", 6)), seed=5))
+        cfg = {
+            "net": {"channels": [4, 8], "fc_hidden": 16, "dropout": 0.0},
+            "train": {"epochs": 1, "batch_size": 6, "samples_per_epoch": None, "val_samples": None, "threads": 1},
+        }
+        models = {}
+        for name, preset in (("geo", "geo-depth-mv-count"), ("conv3d", "conv3d-depth-mv-count")):
+            train(resolve(preset, cfg), data, root / name, progress=False)
+            models[name] = root / name / "model.pt"
+        return models
+
+    return built_once(tmp_path_factory, "tiny", build)
 
 
 @pytest.fixture(scope="session")
 def rig_rec(printed_object, tmp_path_factory):
     """The 2-link object in the training rig, 3 frames at the network's resolution (96 x 128)."""
-    from spare_twin.cli import main
     from spare_twin.recording import Recording
 
-    out = tmp_path_factory.mktemp("rig") / "rig"
-    assert (
-        main(["render", str(printed_object.root), "--out", str(out), "--frames", "3", "--resolution", "network"]) == 0
-    )
-    return Recording.open(out)
+    return Recording.open(_render(printed_object, tmp_path_factory, "rig", "--frames", "3", "--resolution", "network"))
