@@ -318,6 +318,12 @@ def _sub(cls, value, key: str):
     return cls(**{k: float(v) for k, v in value.items()}), []
 
 
+def min_between_axes_mm_of(parts: PartDims, printer: PrinterSpec = PrinterSpec()) -> float:
+    """The shortest link between its two axes that can be printed with `parts`: between them sit the
+    counterbore of one pin and the spacer ring of the other, and a wall."""
+    return counterbore_diameter_mm(parts) / 2 + parts.spacer_ring_diameter_mm / 2 + printer.min_wall_mm
+
+
 def validate(spec: ChainSpec) -> None:
     """Reject configurations that cannot be built or printed: one message naming every field at fault."""
     problems = _value_problems(spec)
@@ -385,8 +391,7 @@ def _value_problems(spec: ChainSpec) -> list[str]:
             "must lie between the pin (plus a minimum wall each side) and the link width",
         )
     lengths_mm = spec.link_lengths_mm
-    # Between two axes of one link sit the counterbore of one pin and the spacer ring of the other.
-    min_between_axes_mm = counterbore_diameter_mm(p) / 2 + p.spacer_ring_diameter_mm / 2 + pr.min_wall_mm
+    min_between_axes_mm = min_between_axes_mm_of(p, pr)
     for i, length_mm in enumerate(lengths_mm[1:-1], start=1):
         if length_mm < min_between_axes_mm:
             bad(

@@ -87,14 +87,21 @@ def test_predict_with_the_parts_measures_the_chain(eight_mm, capsys):
     assert "6 mm thick plates, 6.4 mm layer pitch" in j["network"]["other_parts"]
 
 
-def test_the_default_geometry_miscounts_the_same_capture(eight_mm, capsys):
+def test_the_default_geometry_reads_the_same_capture_less_well(eight_mm, capsys):
     """Without --parts the chain is read with the default 6.4 mm pitch: link 5 sits 6.6 of those
-    layers up and is counted as a sixth link (no 5 on this capture). The JSON says so."""
-    _, _, rec, _ = eight_mm
+    layers up, and a plate cut in two at a half-way mark fits as a link shorter than any printable
+    one. That one is merged back (`measure.layers._unprintable_link`: the count holds; it was 6 before
+    the rule), but the lengths come out farther from the print's than with --parts (0.020 against
+    0.007 paper units at most on this capture). The JSON says the defaults were used."""
+    _, obj, rec, parts = eight_mm
     j = _predict(rec, capsys)
     assert j["parts"]["layer_pitch_mm"] == 6.4 and j["parts"]["defaults"] is True
-    assert j["measurement"]["n_links"] != N_LINKS
     assert "other_parts" not in j["network"]
+    default, told = j["measurement"], _predict(rec, capsys, "--parts", str(parts))["measurement"]
+    error_default = np.abs(np.subtract(default["link_lengths_pu"], _truth(obj))).max()
+    error_told = np.abs(np.subtract(told["link_lengths_pu"], _truth(obj))).max()
+    assert default["n_links"] == told["n_links"] == N_LINKS
+    assert error_default > 2 * error_told, (error_default, error_told)
 
 
 def test_an_object_folder_or_config_gives_the_same_parts(eight_mm, capsys):

@@ -37,13 +37,16 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from spare_twin.config import MAX_MOVING_LINKS, PartDims
+from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
 from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments
 from spare_twin.observe.points import ObjectPoints
 from spare_twin.observe.profile import ChainProfile, parts_geometry_m
 
 #: Points this far above the socket's top are still the socket (its rim, noise).
 SOCKET_MARGIN_M = 0.003
+#: How far a measured link length may fall short of the printed one (the free ends come within 0.8 mm,
+#: the links between joints within about 1 mm on hand-held captures).
+LENGTH_ERROR_M = 0.0015
 
 
 def layers_geometry_m(parts: PartDims) -> dict[str, float]:
@@ -55,6 +58,7 @@ def layers_geometry_m(parts: PartDims) -> dict[str, float]:
         "half_width_m": g["link_width_m"] / 2,
         "half_thickness_m": g["link_thickness_m"] / 2,
         "min_height_m": g["keepout_m"] + SOCKET_MARGIN_M,
+        "min_middle_link_m": min_between_axes_mm_of(parts) / 1000.0 - LENGTH_ERROR_M,
     }
 
 
@@ -108,6 +112,10 @@ class LayersConfig:
     measure: a capture whose views are out of register blurs a chain into a cloud 2-3 cm thick. On
     well-registered captures the RMS stays below 9 mm (Kinect), 5 mm in the rig."""
     samples_per_link: int = 12
+    min_middle_link_m: float = _DEFAULT_PARTS["min_middle_link_m"]
+    """A link between two joints measured shorter than this (the shortest its parts can print,
+    `config.min_between_axes_mm_of`, less `LENGTH_ERROR_M`) is no link: a plate tilted by the joints'
+    play across the half-way mark between two layers (`_unprintable_link`)."""
     directions: int = 72
     """Link directions tried by the fit's second start (`_initial_sequential`)."""
     max_points: int = 1500
@@ -267,10 +275,19 @@ def measure_layers(
         layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
         x, rms = fit_layers(layers, n, cfg)
         top, parent = centre_layers[labels_n == n], centre_layers[labels_n == n - 1]
-        if n == 1 or not (
+        if n > 1 and (
             _top_layer_is_stray(x, layers, top, n, cfg) or _top_layer_is_tilted_parent(layers, top, parent, n)
         ):
+            n -= 1
+            continue
+        # the top layer settled first: a tilted last plate cut in two also fits as a short link below it
+        short = _unprintable_link(x, n, cfg)
+        if short is None:
             break
+        above = labels >= short  # its layer joins its parent's, and every layer above moves down one
+        labels = np.where(above, labels - 1, labels)
+        centre_layers = np.where(above, centre_layers - 1, centre_layers)
+        per_layer = count_links(labels, cfg)[1]  # the evidence as renumbered
         n -= 1
     if rms > cfg.max_rms_m:
         reason = (
@@ -280,6 +297,18 @@ def measure_layers(
         return LayerMeasurement(None, None, None, per_layer, rms, reason)
     angles = (x[n + 2 :] + np.pi) % (2 * np.pi) - np.pi
     return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms)
+
+
+def _unprintable_link(x: np.ndarray, n: int, cfg: LayersConfig) -> int | None:
+    """The first link between two joints (1..n-1) that the fit `x` makes shorter than any printable
+    one (`LayersConfig.min_middle_link_m`), or None. Joint play tilts each plate 1-4 degrees about its
+    joint and the tilts add up along the chain: where the plates have climbed past half a layer, one
+    plate is cut in two at the half-way mark, and the piece read a layer up fits as a link a few mm
+    long (bench seed 30022: 5 links counted 6, a 6 mm link between links 1 and 2)."""
+    for k in range(1, n):
+        if x[1 + k] < cfg.min_middle_link_m:
+            return k
+    return None
 
 
 def _top_layer_is_stray(
