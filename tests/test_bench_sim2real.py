@@ -80,13 +80,19 @@ def test_wrong_and_none_counted_apart_and_refused_never_scored():
     assert only_refused["objects"] == 0 and only_refused["refused"] == 2 and only_refused["count_accuracy"] is None
 
 
-def _result(n, answers_by_side):
+def _result(n, answers_by_side, frames=30, resolution="640x480", predict_s=2.0):
     truth = {"n_links": n, "link_lengths_pu": [1.5] + [0.5] * n, "joint_angles_rad": [0.1] * n}
     sides = {
         side: {"answers": {k: a if a.get("refused") else _scored(a, truth) for k, a in answers.items()}}
         for side, answers in answers_by_side.items()
     }
-    return {"truth": truth, "sides": sides, "times_s": {"predict": {"real": {"combined": 2.0}}}}
+    settings = {"frames": frames, "resolution": resolution}
+    return {
+        "truth": truth,
+        "sides": sides,
+        "settings": settings,
+        "times_s": {"predict": {"real": {"combined": predict_s}}},
+    }
 
 
 def test_bench_table_rows_sides_per_n_and_goals():
@@ -104,6 +110,20 @@ def test_bench_table_rows_sides_per_n_and_goals():
     assert net["objects"] == 1 and net["refused"] == 1 and net["count_accuracy"] == 1.0
     assert not table["goals"]["combined_real_count_at_least_0.95"]
     assert table["goals"]["net_real_count_at_least_0.90"]
+    assert table["goals"]["predict_at_most_10_s_up_to_30_frames_640x480"]
+
+
+def test_time_goal_judged_on_captures_of_30_frames_at_640x480_or_less():
+    one = {"n_links": 1, "link_lengths_pu": [1.5, 0.5], "joint_angles_rad": [0.1]}
+    good = {"combined": one, "measurement": one}
+    sides = {"sim_rig": good, "sim_cameras": good, "real": good}
+    big = [_result(1, sides, frames=48, predict_s=18.0), _result(1, sides, resolution="848x480", predict_s=12.0)]
+    table = bench_table(big, [])
+    assert table["goals"]["predict_at_most_10_s_up_to_30_frames_640x480"] is None  # no capture of that size
+    assert table["overall"]["predict_combined_real_s"]["max"] == 18.0
+    slow = bench_table([*big, _result(1, sides, frames=30, predict_s=10.5)], [])
+    assert slow["overall"]["predict_combined_real_s_up_to_30_frames_640x480"] == {"captures": 1, "max": 10.5}
+    assert slow["goals"]["predict_at_most_10_s_up_to_30_frames_640x480"] is False
 
 
 def test_capture_settings_table():

@@ -131,6 +131,38 @@ def test_a_link_tilted_out_of_its_layer_by_the_joint_play_is_one_link(lengths_m,
     assert np.allclose(m.lengths_pu, np.asarray(lengths_m) / PRINT_SCALE, atol=0.0025 / PRINT_SCALE), m.lengths_pu
 
 
+def _leaning_chain(lengths_m, angles_deg, leans_deg, seed=0):
+    """A chain whose joints' play adds up: link k leans by the sum of leans 1..k (each link carries its
+    parent's lean on) and starts one layer past its parent's plate where that one ends, so its plate
+    lies millimetres off k layer pitches and slants across them."""
+    rng = np.random.default_rng(seed)
+    p, d = _plate(np.array([0.0, 0.0]), np.array([0.0, 1.0]), lengths_m[0], 0.0, 0.0, rng=rng)
+    pts, dirs = [p], [d]
+    joint, phi, lean, t_joint = np.array([0.0, lengths_m[0]]), 0.0, 0.0, 0.0
+    for length, angle, step in zip(lengths_m[1:], angles_deg, leans_deg):
+        phi, lean, t_joint = phi + np.radians(angle), lean + np.radians(step), t_joint + 0.0064
+        direction = np.array([np.sin(phi), np.cos(phi)])
+        p, d = _plate(joint, direction, length, t_joint, lean, rng=rng)
+        pts.append(p)
+        dirs.append(d)
+        joint, t_joint = joint + length * direction, t_joint + np.sin(lean) * length
+    return np.concatenate(pts), np.concatenate(dirs)
+
+
+def test_links_leaning_off_one_comb_are_counted_plate_by_plate():
+    """Five links each leaning 2-3 deg further the same way: their plates end up 0.6-0.8 of a pitch
+    apart on average, off any single comb (bench seed 30052: five links read as three). The comb
+    followed along the chain counts them; one comb for the whole chain does not."""
+    lengths_m = (0.07, 0.045, 0.04, 0.04, 0.04, 0.035)
+    angles_deg, leans_deg = (60.0, 30.0, 20.0, -40.0, 30.0), (-3.0, -2.0, -3.0, -2.0, -2.0)
+    points, dirs = _leaning_chain(lengths_m, angles_deg, leans_deg)
+    m = measure_layers(points, PRINT_SCALE, True, LayersConfig(), dirs)
+    assert m.n_links == 5, m.points_per_layer
+    assert np.allclose(m.lengths_pu, np.asarray(lengths_m) / PRINT_SCALE, atol=0.003 / PRINT_SCALE), m.lengths_pu
+    one_comb = measure_layers(points, PRINT_SCALE, True, LayersConfig(follow_comb=False), dirs)
+    assert one_comb.n_links != 5, one_comb.points_per_layer
+
+
 def test_a_side_in_the_projectors_shadow_still_counts(printed_object, tmp_path):
     rec = _render(printed_object, tmp_path / "shadow", shadows=True, baseline_m=0.075, flying_pixels=True)
     clean = _render(printed_object, tmp_path / "clean")

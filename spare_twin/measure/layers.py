@@ -8,7 +8,9 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    `radius_m`) over the pitch, rounded, once the shear of t along s is taken out (`_layer_shear`).
    The median is what makes this hold under a structured-light sensor's noise of several
    millimetres, where a single point's t is often a layer off; where two plates overlap (at a joint)
-   a point may take either label, and lies inside both plates anyway.
+   a point may take either label, and lies inside both plates anyway. A second reading follows the
+   comb along the chain from the base (`measure.plates`: joint play leans the links off one comb);
+   it is kept where it counts otherwise and its chain fits far better (`FOLLOWED_RMS_SHARE`).
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
    2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
 3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
@@ -39,6 +41,7 @@ from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
 from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments
+from spare_twin.measure.plates import local_comb_layers
 from spare_twin.observe.points import ObjectPoints
 from spare_twin.observe.profile import ChainProfile, parts_geometry_m
 
@@ -112,6 +115,10 @@ class LayersConfig:
     measure: a capture whose views are out of register blurs a chain into a cloud 2-3 cm thick. On
     well-registered captures the RMS stays below 9 mm (Kinect), 5 mm in the rig."""
     samples_per_link: int = 12
+    follow_comb: bool = True
+    """Read the layers a second way, the comb followed along the chain (`measure.plates`), and keep
+    that reading where it counts otherwise and fits far better (`FOLLOWED_RMS_SHARE`); False: one
+    comb of the layer pitch for the whole chain (the chain as designed, no play)."""
     min_middle_link_m: float = _DEFAULT_PARTS["min_middle_link_m"]
     """A link between two joints measured shorter than this (the shortest its parts can print,
     `config.min_between_axes_mm_of`, less `LENGTH_ERROR_M`) is no link: a plate tilted by the joints'
@@ -147,10 +154,18 @@ class LayerMeasurement:
 
 
 def layer_labels(
-    s_m: np.ndarray, t_m: np.ndarray, z_m: np.ndarray, view_t: np.ndarray | None, cfg: LayersConfig
+    s_m: np.ndarray,
+    t_m: np.ndarray,
+    z_m: np.ndarray,
+    view_t: np.ndarray | None,
+    cfg: LayersConfig,
+    follow: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(N,) int64 layer of each point: the median plate centre (in pitches, rounded) of its in-plane
-    neighbourhood on the same side of the chain. A point seen from +t lies on a plate's +t face, half
+    """(labels, centre_layers): each point's (N,) int64 layer and its plate centre in layers. The
+    plate centre is the median of its in-plane neighbourhood on the same side of the chain; the
+    layers are read off one comb of the layer pitch (shear taken out), rounded, or with `follow` off
+    the comb followed along the chain from the base's column (`measure.plates`: joint play leans the
+    links off one comb). A point seen from +t lies on a plate's +t face, half
     a thickness past its centre (and the other way round), so each reading says its plate's centre;
     where two plates overlap at a joint, those seen from either side are each one plate's face."""
     side = np.zeros(len(t_m), np.int64)
@@ -166,13 +181,17 @@ def layer_labels(
             pool = mine if value != 0 else np.arange(len(t_m))  # an edge-on point asks all its neighbours
             neighbours = cKDTree(sz[pool]).query_ball_point(sz[mine], cfg.radius_m, return_sorted=True)
             median_t[mine] = grouped_medians(centre_t[pool], neighbours)  # each point is its own neighbour
+    column = (z_m > cfg.min_height_m) & (z_m < cfg.min_height_m + 0.02) & (np.abs(s_m) < cfg.half_width_m * 2)
+    if follow:
+        followed = local_comb_layers(sz, median_t, column, cfg.layer_pitch_m, cfg.radius_m)
+        if followed is not None:
+            return followed
     median_t = median_t - _layer_shear(s_m, median_t, cfg) * s_m
     # the base link is layer 0 by definition: its column above the socket sets t's zero (the profile's
     # base axis is the foot's centre, a millimetre or two off the plate's); the layers' common phase
     # says where within a pitch the zero lies, the column which layer it is
     wave = 2 * np.pi / cfg.layer_pitch_m
     zero = float(np.angle(np.sum(np.exp(1j * wave * median_t)))) / wave
-    column = (z_m > cfg.min_height_m) & (z_m < cfg.min_height_m + 0.02) & (np.abs(s_m) < cfg.half_width_m * 2)
     if column.sum() >= cfg.min_layer_points:
         zero += cfg.layer_pitch_m * np.rint((np.median(median_t[column]) - zero) / cfg.layer_pitch_m)
     centre_layers = (median_t - zero) / cfg.layer_pitch_m
@@ -266,7 +285,33 @@ def measure_layers(
         p, v = p[pick], v[pick]
     if len(p) < cfg.min_layer_points:
         return LayerMeasurement(None, None, None, ())
-    labels, centre_layers = layer_labels(p[:, 0], p[:, 1], p[:, 2], None if view_dirs is None else v[:, 1], cfg)
+    view_t = None if view_dirs is None else v[:, 1]
+    one_comb = layer_labels(p[:, 0], p[:, 1], p[:, 2], view_t, cfg)
+    as_designed = _measure_reading(p, *one_comb, print_scale, cfg)
+    if not cfg.follow_comb:
+        return as_designed
+    along = layer_labels(p[:, 0], p[:, 1], p[:, 2], view_t, cfg, follow=True)
+    if np.array_equal(along[0], one_comb[0]):  # the chain as designed (the rig): one reading
+        return as_designed
+    followed = _measure_reading(p, *along, print_scale, cfg)
+    if followed.n_links is None or followed.n_links == as_designed.n_links:
+        return as_designed
+    if as_designed.n_links is None or followed.rms_m <= FOLLOWED_RMS_SHARE * as_designed.rms_m:
+        return followed
+    return as_designed
+
+
+#: The layers read along the chain (`measure.plates`) replace the comb's where they give another
+#: count and their chain holds its points at least this much closer (RMS): each reading fits its own
+#: chain well, a count with a link too many a little better, so a near tie keeps the comb's.
+FOLLOWED_RMS_SHARE = 0.5
+
+
+def _measure_reading(
+    p: np.ndarray, labels: np.ndarray, centre_layers: np.ndarray, print_scale: float, cfg: LayersConfig
+) -> LayerMeasurement:
+    """The chain of points `p` (s, t, z) with one reading of their layers: counted, fitted and
+    checked (a top layer that is no link, a link too short to print), or why it is no chain."""
     n, per_layer = count_links(labels, cfg)
     if n is None:
         return LayerMeasurement(None, None, None, per_layer)
