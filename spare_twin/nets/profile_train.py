@@ -38,7 +38,7 @@ from spare_twin.nets.profile_samples import CaptureAugment, stored_sample
 from spare_twin.recording import npz_bytes
 
 #: Hand-held-like captures per training time step.
-TRAIN_VARIANTS = 1
+TRAIN_VARIANTS = 2
 #: Validation observes every this many time steps of each sequence.
 VAL_FRAME_STRIDE = 4
 #: The code a cached evaluation split depends on: its source is part of the cache key.
