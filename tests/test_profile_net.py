@@ -106,16 +106,18 @@ def test_profile_training_resumes_exactly(run, small_data, tmp_path, monkeypatch
 
 
 def test_profile_training_takes_patience_and_device(run, small_data, tmp_path, capsys):
-    """A rate too small to change anything: validation never improves on epoch 1, so with patience 1
-    the run ends after epoch 2 of 10."""
+    """A rate too small to change the weights: validation moves only with BatchNorm's running
+    statistics, which settle within a few epochs; with patience 1 the run ends one epoch after its
+    best, well before epoch 10."""
     cfg = tmp_path / "cfg.json"
     cfg.write_text(json.dumps({"preset": "profile-depth-multitask", **TINY_PROFILE}))
     out = _with_samples_of(run, tmp_path / "run")
     argv = ["train", "--config", str(cfg), "--data", str(small_data), "--out", str(out), "--epochs", "10"]
     code, stdout, err = run_cli([*argv, "--lr", "1e-12", "--patience", "1", "--device", "cpu", "--json"], capsys)
     assert code == 0, err
-    assert "stopping early" in err and json.loads(stdout)["best_epoch"] == 1
-    assert len(json.loads((out / "history.json").read_text())) == 2
+    summary = json.loads(stdout)
+    assert "stopping early" in err and summary["epochs"] == summary["best_epoch"] + 1 < 10
+    assert len(json.loads((out / "history.json").read_text())) == summary["epochs"]
     code, stdout, err = run_cli([*argv, "--out", str(tmp_path / "otf"), "--on-the-fly"], capsys)
     assert code == 1 and "--on-the-fly" in err and not (tmp_path / "otf").exists()
 
