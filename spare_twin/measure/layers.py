@@ -153,21 +153,17 @@ class LayerMeasurement:
     `n_links` is None."""
 
 
-def layer_labels(
-    s_m: np.ndarray,
-    t_m: np.ndarray,
-    z_m: np.ndarray,
-    view_t: np.ndarray | None,
-    cfg: LayersConfig,
-    follow: bool = False,
-) -> tuple[np.ndarray, np.ndarray]:
-    """(labels, centre_layers): each point's (N,) int64 layer and its plate centre in layers. The
-    plate centre is the median of its in-plane neighbourhood on the same side of the chain; the
-    layers are read off one comb of the layer pitch (shear taken out), rounded, or with `follow` off
-    the comb followed along the chain from the base's column (`measure.plates`: joint play leans the
-    links off one comb). A point seen from +t lies on a plate's +t face, half
-    a thickness past its centre (and the other way round), so each reading says its plate's centre;
-    where two plates overlap at a joint, those seen from either side are each one plate's face."""
+def layer_readings(
+    s_m: np.ndarray, t_m: np.ndarray, z_m: np.ndarray, view_t: np.ndarray | None, cfg: LayersConfig
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The readings of the points' layers, each (labels, centre_layers): each point's (N,) int64 layer
+    and its plate centre in layers. The plate centre is the median of its in-plane neighbourhood on
+    the same side of the chain. First the layers read off one comb of the layer pitch (shear taken
+    out), rounded; then, with `cfg.follow_comb` and a base column, off the comb followed along the
+    chain from that column (`measure.plates`: joint play leans the links off one comb). A point seen
+    from +t lies on a plate's +t face, half a thickness past its centre (and the other way round), so
+    each reading says its plate's centre; where two plates overlap at a joint, those seen from either
+    side are each one plate's face."""
     side = np.zeros(len(t_m), np.int64)
     if view_t is not None:
         side = np.where(view_t > cfg.min_side_cosine, 1, np.where(view_t < -cfg.min_side_cosine, -1, 0))
@@ -182,10 +178,18 @@ def layer_labels(
             neighbours = cKDTree(sz[pool]).query_ball_point(sz[mine], cfg.radius_m, return_sorted=True)
             median_t[mine] = grouped_medians(centre_t[pool], neighbours)  # each point is its own neighbour
     column = (z_m > cfg.min_height_m) & (z_m < cfg.min_height_m + 0.02) & (np.abs(s_m) < cfg.half_width_m * 2)
-    if follow:
+    readings = [_one_comb(s_m, median_t, column, cfg)]
+    if cfg.follow_comb:
         followed = local_comb_layers(sz, median_t, column, cfg.layer_pitch_m, cfg.radius_m)
         if followed is not None:
-            return followed
+            readings.append(followed)
+    return readings
+
+
+def _one_comb(
+    s_m: np.ndarray, median_t: np.ndarray, column: np.ndarray, cfg: LayersConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """(labels, centre_layers) read off one comb of the layer pitch, its shear along s taken out."""
     median_t = median_t - _layer_shear(s_m, median_t, cfg) * s_m
     # the base link is layer 0 by definition: its column above the socket sets t's zero (the profile's
     # base axis is the foot's centre, a millimetre or two off the plate's); the layers' common phase
@@ -285,15 +289,11 @@ def measure_layers(
         p, v = p[pick], v[pick]
     if len(p) < cfg.min_layer_points:
         return LayerMeasurement(None, None, None, ())
-    view_t = None if view_dirs is None else v[:, 1]
-    one_comb = layer_labels(p[:, 0], p[:, 1], p[:, 2], view_t, cfg)
-    as_designed = _measure_reading(p, *one_comb, print_scale, cfg)
-    if not cfg.follow_comb:
+    readings = layer_readings(p[:, 0], p[:, 1], p[:, 2], None if view_dirs is None else v[:, 1], cfg)
+    as_designed = _measure_reading(p, *readings[0], print_scale, cfg)
+    if len(readings) == 1 or np.array_equal(readings[1][0], readings[0][0]):  # the rig: one reading
         return as_designed
-    along = layer_labels(p[:, 0], p[:, 1], p[:, 2], view_t, cfg, follow=True)
-    if np.array_equal(along[0], one_comb[0]):  # the chain as designed (the rig): one reading
-        return as_designed
-    followed = _measure_reading(p, *along, print_scale, cfg)
+    followed = _measure_reading(p, *readings[1], print_scale, cfg)
     if followed.n_links is None or followed.n_links == as_designed.n_links:
         return as_designed
     if as_designed.n_links is None or followed.rms_m <= FOLLOWED_RMS_SHARE * as_designed.rms_m:

@@ -8,7 +8,7 @@ any point, the plates there (a link, and its parent and child where they meet) a
 apart.
 
 So the comb's zero is read locally and followed from the base: each point's local phase is that of
-the plate centres within `LOCAL_COMB_RADIUS_M` in the plane (`layers.layer_labels`' neighbourhood
+the plate centres within `LOCAL_COMB_RADIUS_M` in the plane (`layers.layer_readings`' neighbourhood
 medians, t across the plane), and it is unwrapped outwards from the base's column, neighbour to
 neighbour, nearest first; a point's layer is its plate centre over the pitch from that zero, rounded.
 A lean or the plane's direction a little off move the zero smoothly, a joint moves it by a whole pitch,
@@ -44,7 +44,8 @@ def local_comb_layers(
         return None
     wave = 2 * np.pi / pitch_m
     phasor = np.exp(1j * wave * centre_t_m)
-    near = cKDTree(sz_m).query_pairs(LOCAL_COMB_RADIUS_M, output_type="ndarray")
+    tree = cKDTree(sz_m)
+    near = tree.query_pairs(LOCAL_COMB_RADIUS_M, output_type="ndarray")
     rows = np.concatenate([near[:, 0], near[:, 1], np.arange(n)])
     cols = np.concatenate([near[:, 1], near[:, 0], np.arange(n)])
     local = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n)).tocsr() @ phasor
@@ -52,7 +53,7 @@ def local_comb_layers(
     # the base link is layer 0 by definition: the column's phase, moved to the pitch its points sit at
     column_zero = float(np.angle(phasor[column].sum())) / wave
     column_zero += pitch_m * np.rint((np.median(centre_t_m[column]) - column_zero) / pitch_m)
-    neighbours = cKDTree(sz_m).query_ball_point(sz_m, step_m, return_sorted=True)
+    neighbours = tree.query_ball_point(sz_m, step_m, return_sorted=True)
     zero = np.full(n, np.nan)
     best = np.full(n, np.inf)
     parent = np.full(n, -1)
