@@ -135,3 +135,23 @@ def test_a_file_that_is_not_a_bag_is_one_line(tmp_path, capsys):
     code, _, err = run_cli(["live", "--bag", str(fake), "--no-viewer", "--out", str(tmp_path / "r")], capsys)
     assert code == 1 and len(err.strip().splitlines()) == 1 and "fake.bag" in err and "Traceback" not in err
     assert not (tmp_path / "r").exists()
+
+
+def test_a_frame_the_replay_hands_out_again_is_a_repeat():
+    """open3d's real-time .bag replay can hand a frame out twice on a busy machine (a 2-frame bag read
+    as 4): both bag readers drop a frame that repeats the last one bit for bit."""
+    import open3d as o3d
+
+    from spare_twin.capture.record import repeats
+
+    def frame(depth_mm):
+        color = np.full((4, 5, 3), 200, np.uint8)
+        depth = np.full((4, 5), depth_mm, np.uint16)
+        return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(color), o3d.t.geometry.Image(depth))
+
+    again, previous = repeats(frame(500), None)
+    assert not again
+    again, previous = repeats(frame(500), previous)
+    assert again
+    again, _ = repeats(frame(501), previous)  # one millimetre anywhere is a new frame
+    assert not again

@@ -29,7 +29,7 @@ import numpy as np
 from spare_twin.capture.checks import positive, whole
 from spare_twin.capture.frames import check_depth
 from spare_twin.capture.layouts import LAYOUTS, LISTERS, FrameFiles, Source
-from spare_twin.capture.record import stream_to_recording
+from spare_twin.capture.record import repeats, stream_to_recording
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import encode_png, read_png
 from spare_twin.output import check_output
@@ -228,11 +228,14 @@ def import_bag(path: str | Path, out: str | Path, opts: ImportOptions = ImportOp
         md = reader.metadata
 
         def frames():
+            previous = None
             while not reader.is_eof():
                 im = reader.next_frame()
                 if im.is_empty():  # the end came while the reader waited for the next frame
                     return
-                yield im
+                again, previous = repeats(im, previous)
+                if not again:
+                    yield im
 
         return stream_to_recording(
             frames(),

@@ -73,6 +73,16 @@ def o3d_frame_arrays(im, size: tuple[int, int], where: str) -> tuple[np.ndarray,
     return color[..., :3], depth.astype(np.uint16)
 
 
+def repeats(im, previous: tuple[np.ndarray, np.ndarray] | None) -> tuple[bool, tuple[np.ndarray, np.ndarray]]:
+    """(whether open3d RGBD frame `im` repeats `previous` bit for bit, `im`'s (colour, depth) arrays to
+    compare the next frame with). open3d's RSBagReader replays a .bag in real time, and on a busy
+    machine it hands a frame out again (a 2-frame bag read as 4); a sensor's noise never repeats a
+    frame to the bit, so a repeat is the replay's, not the scene's."""
+    current = (_tensor_np(im.color).copy(), _tensor_np(im.depth).copy())
+    same = previous is not None and all(np.array_equal(a, b) for a, b in zip(current, previous))
+    return same, current
+
+
 def stream_to_recording(
     frames,
     md,

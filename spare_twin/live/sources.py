@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.capture.frames import K_from, check_depth
-from spare_twin.capture.record import RecordConfig, o3d_frame_arrays, start_realsense
+from spare_twin.capture.record import RecordConfig, o3d_frame_arrays, repeats, start_realsense
 from spare_twin.errors import SpareTwinError
 from spare_twin.recording import Recording, RecordingWriter
 
@@ -205,11 +205,14 @@ class BagSource(_O3dStream):
         self._set_info(md, {**source, "path": str(self.path.resolve())}, self.path)
 
     def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
-        start, t0, k = time.monotonic(), None, 0
+        start, t0, k, previous = time.monotonic(), None, 0, None
         while not stop.is_set() and not self.reader.is_eof():
             im = self.reader.next_frame()
             if im.is_empty():  # the end came while the reader waited for the next frame
                 return
+            again, previous = repeats(im, previous)
+            if again:
+                continue
             stamp_s = self.reader.get_timestamp() * 1e-6
             t0 = stamp_s if t0 is None else t0
             _paced(stamp_s - t0, start, self.speed, stop)
