@@ -3,12 +3,13 @@ before anything is fused, a link tilted out of its layer by the joint's play mea
 a side in the projector's shadow still counted, a tracker's approximate poses brought into register."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from spare_twin.measure.layers import LayersConfig, measure_layers
+from spare_twin.measure.layers import LayersConfig, count_links, layer_readings, measure_layers, split_layers
 from spare_twin.observe.on_object import tracked_into_register
 from spare_twin.observe.points import PointsConfig, PosedView, object_candidates, without_flying_pixels
 from spare_twin.observe.views import PosedViews, recording_views
@@ -161,6 +162,48 @@ def test_links_leaning_off_one_comb_are_counted_plate_by_plate():
     assert np.allclose(m.lengths_pu, np.asarray(lengths_m) / PRINT_SCALE, atol=0.003 / PRINT_SCALE), m.lengths_pu
     one_comb = measure_layers(points, PRINT_SCALE, True, LayersConfig(follow_comb=False), dirs)
     assert one_comb.n_links != 5, one_comb.points_per_layer
+
+
+def test_a_long_middle_link_cut_in_two_by_its_lean_is_one_link():
+    """An 80 mm second link leaning 4 deg climbs 5.6 mm, past the half-way mark to the next layer, and
+    the links after it carry the lean on: one comb reads the plate's far end as a link of its own (5
+    layers for 4 links; bench seed 30057). Where that piece meets the plate it ran on from, their plate
+    centres step by a fraction of a layer, not the whole layer of a joint, and it is merged back."""
+    lengths_m = (0.07, 0.045, 0.08, 0.04, 0.035)
+    points, dirs = _leaning_chain(lengths_m, (30.0, -40.0, 60.0, 30.0), (0.0, 4.0, 0.0, 0.0))
+    cfg = LayersConfig(follow_comb=False)  # the one comb alone
+    labels, _ = layer_readings(points[:, 0], points[:, 1], points[:, 2], dirs[:, 1], cfg)[0]
+    assert count_links(labels, cfg)[0] == 5  # the plate is cut
+    m = measure_layers(points, PRINT_SCALE, True, cfg, dirs)
+    assert m.n_links == 4, m.points_per_layer
+    assert np.allclose(m.lengths_pu, np.asarray(lengths_m) / PRINT_SCALE, atol=0.003 / PRINT_SCALE), m.lengths_pu
+
+
+def _bench_points(name):
+    """A bench capture's measurement input (`tests/data/bench_points/`): its points in the profile
+    frame, their view directions, and the true lengths."""
+    d = np.load(Path(__file__).parent / "data" / "bench_points" / f"{name}.npz")
+    return d["points_stz_m"], d["view_dirs"], float(d["print_scale"]), bool(d["sign_known"]), d["link_lengths_pu"]
+
+
+def test_bench_captures_whose_links_lean_off_the_comb_are_counted():
+    """Two captures of the bench (seeds 30057 and 30068, drawn with every effect) that the 0.6.2
+    measurement miscounted. 30068: 3 links whose two short middle ones run straight on, all leaning the
+    same way; the one comb reads the far end of the last link in the first link's layer (two separate
+    pieces in one layer, `split_layers`), the comb followed along the chain reads one piece a layer,
+    and its count is kept (0.6.2 kept the comb's, which counted 1). 30057: 4 links, the second one's
+    plate cut in two by its lean (counted 5)."""
+    for name, n in (("seed30068", 3), ("seed30057", 4)):
+        points, dirs, print_scale, sign_known, lengths_pu = _bench_points(name)
+        m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
+        assert m.n_links == n, (name, m.points_per_layer)
+        assert np.abs(m.lengths_pu - lengths_pu).max() < 0.1, (name, m.lengths_pu, lengths_pu)
+    points, dirs, *_ = _bench_points("seed30068")
+    keep = points[:, 2] > LayersConfig().min_height_m
+    p, v = points[keep], dirs[keep]
+    one_comb, followed = layer_readings(p[:, 0], p[:, 1], p[:, 2], v[:, 1], LayersConfig())
+    assert split_layers(p[:, [0, 2]], one_comb[0], LayersConfig()) == 1
+    assert split_layers(p[:, [0, 2]], followed[0], LayersConfig()) == 0
 
 
 def test_a_side_in_the_projectors_shadow_still_counts(printed_object, tmp_path):

@@ -9,8 +9,10 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    The median is what makes this hold under a structured-light sensor's noise of several
    millimetres, where a single point's t is often a layer off; where two plates overlap (at a joint)
    a point may take either label, and lies inside both plates anyway. A second reading follows the
-   comb along the chain from the base (`measure.plates`: joint play leans the links off one comb);
-   it is kept where it counts otherwise and its chain fits far better (`FOLLOWED_RMS_SHARE`).
+   comb along the chain from the base (`measure.plates`: joint play leans the links off one comb).
+   Where the two count otherwise, the one that puts no two separate pieces of the chain in one layer
+   is kept (`split_layers`), and between two such, the followed one where its chain fits clearly
+   better (`FOLLOWED_RMS_SHARE`).
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
    2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
 3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
@@ -25,7 +27,11 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    trap the fit. A weak pull on the two free ends (the base's top, the last link's tip) keeps the
    shortest chain that holds the points, where the coverage tolerance alone let them drift out.
    The fit, its starts and its residuals' Jacobian (in closed form) are `measure.fit`.
-4. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
+4. **no link**: a top layer that is its parent's points read a layer up (`_top_layer_is_stray`), a
+   layer that is the far end of its parent's plate cut off by the joint's lean (`_cut_plate`: where
+   they meet, the plate centres step by a fraction of a layer, not a joint's whole layer) and a link
+   between joints too short to print (`_unprintable_link`) are merged into the layer below.
+5. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
    to measure, and the measurement says why (a capture blurred by views out of register).
 
 Deterministic: medians, sorted KD-tree queries and scipy's least squares with fixed starts.
@@ -37,6 +43,8 @@ import itertools
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
@@ -296,15 +304,43 @@ def measure_layers(
     followed = _measure_reading(p, *readings[1], print_scale, cfg)
     if followed.n_links is None or followed.n_links == as_designed.n_links:
         return as_designed
-    if as_designed.n_links is None or followed.rms_m <= FOLLOWED_RMS_SHARE * as_designed.rms_m:
+    if as_designed.n_links is None:
         return followed
-    return as_designed
+    split = [split_layers(p[:, [0, 2]], labels, cfg) for labels, _ in readings]
+    if split[0] != split[1]:
+        return as_designed if split[0] < split[1] else followed
+    return followed if followed.rms_m <= FOLLOWED_RMS_SHARE * as_designed.rms_m else as_designed
 
 
-#: The layers read along the chain (`measure.plates`) replace the comb's where they give another
-#: count and their chain holds its points at least this much closer (RMS): each reading fits its own
-#: chain well, a count with a link too many a little better, so a near tie keeps the comb's.
-FOLLOWED_RMS_SHARE = 0.5
+#: Where the two readings give other counts and neither splits a link (`split_layers`), the layers
+#: read along the chain (`measure.plates`) replace the comb's where their chain holds its points at
+#: least this much closer (RMS): each reading fits its own chain well, a count with a link too many a
+#: little better, so a near tie keeps the comb's.
+FOLLOWED_RMS_SHARE = 0.65
+#: A layer's piece counts apart (`split_layers`) from this many of its points, or this share of them.
+MIN_PIECE_POINTS = 15
+MIN_PIECE_SHARE = 0.1
+
+
+def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int:
+    """How many more pieces than links the layers 1..n of a reading hold (n as the reading counts
+    them, before any layer is found to be no link): pieces of a layer that are
+    not joined in the plane (within `radius_m`). A link is one plate, so each of its layers is one
+    piece; a reading that puts two separate parts of the chain in one layer has read a plate across
+    a layer boundary (the comb held still while joint play's leans climbed along a straight run of
+    short links: bench seed 30068, 3 links read as 1)."""
+    n = count_links(labels, cfg)[0] or 0
+    labels = np.clip(labels, 0, n)
+    extra = 0
+    for k in range(1, n + 1):
+        q = sz_m[labels == k]
+        if len(q) < 2:
+            continue
+        pairs = cKDTree(q).query_pairs(cfg.radius_m, output_type="ndarray")
+        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(q), len(q)))
+        sizes = np.bincount(connected_components(graph, directed=False)[1])
+        extra += max(int((sizes >= max(MIN_PIECE_POINTS, MIN_PIECE_SHARE * len(q))).sum()) - 1, 0)
+    return extra
 
 
 def _measure_reading(
@@ -319,17 +355,16 @@ def _measure_reading(
         labels_n = np.clip(labels, 0, n)
         layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
         x, rms = fit_layers(layers, n, cfg)
-        top, parent = centre_layers[labels_n == n], centre_layers[labels_n == n - 1]
-        if n > 1 and (
-            _top_layer_is_stray(x, layers, top, n, cfg) or _top_layer_is_tilted_parent(layers, top, parent, n)
-        ):
+        centres = [centre_layers[labels_n == k] for k in range(n + 1)]
+        if n > 1 and (_top_layer_is_stray(x, layers, centres[n], n, cfg) or _cut_plate(layers, centres, n, n)):
             n -= 1
             continue
-        # the top layer settled first: a tilted last plate cut in two also fits as a short link below it
-        short = _unprintable_link(x, n, cfg)
-        if short is None:
+        # the top layer settled first: a tilted plate cut in two lower down reads as a link of its own,
+        # often one too short to print
+        cut = _unprintable_link(x, n, cfg) or next((k for k in range(2, n) if _cut_plate(layers, centres, k, n)), None)
+        if cut is None:
             break
-        above = labels >= short  # its layer joins its parent's, and every layer above moves down one
+        above = labels >= cut  # its layer joins its parent's, and every layer above moves down one
         labels = np.where(above, labels - 1, labels)
         centre_layers = np.where(above, centre_layers - 1, centre_layers)
         per_layer = count_links(labels, cfg)[1]  # the evidence as renumbered
@@ -371,29 +406,28 @@ def _top_layer_is_stray(
     return bool(inside.mean() >= cfg.max_top_inside_parent)
 
 
-#: Where the top layer's points meet their parent's (within this, in the plane), plate centres that
-#: step up by less than this many layers run on from the parent's: one plate tilted out of its layer.
+#: Where a layer's points meet its parent's (within this, in the plane), plate centres that step up
+#: by less than this many layers run on from the parent's: one plate tilted out of its layer.
 MAX_TILT_STEP_LAYERS = 0.35
 TILT_CONTACT_M = 0.009
 
 
-def _top_layer_is_tilted_parent(
-    layers: list[np.ndarray], top_centres: np.ndarray, parent_centres: np.ndarray, n: int
-) -> bool:
-    """Whether the top layer is the far end of its parent's plate, tilted out of its layer by the
-    joint's play, not a link. A printed pin joint lets a link lean 1-4 deg out of the chain's plane
-    about its own joint: a 54 mm link's tip ends 3-4 mm (half a layer or more) off its layer, and the
-    rounding cuts the plate in two (bench seed 30009, 4 links counted 5). A real link meets its
-    parent at a joint a whole layer up: where the two layers' points meet, their plate centres step
-    by about one layer; a tilted plate's run on across the half-way mark, a step of a fraction."""
-    top, parent = layers[n], layers[n - 1]
+def _cut_plate(layers: list[np.ndarray], centres: list[np.ndarray], k: int, n: int) -> bool:
+    """Whether layer k (1 < k <= n) is the far end of its parent's plate, tilted out of its layer by
+    the joint's play, not a link. A printed pin joint lets a link lean 1-4 deg out of the chain's
+    plane about its own joint: a 54 mm link's tip ends 3-4 mm (half a layer or more) off its layer,
+    and the rounding cuts the plate in two (bench seed 30009, 4 links counted 5, at the top; seed
+    30057, 4 counted 5, the second link cut). A real link meets its parent at a joint a whole layer
+    up: where the two layers' points meet, their plate centres step by about one layer; a tilted
+    plate's run on across the half-way mark, a step of a fraction."""
+    top, parent = layers[k], layers[k - 1]
     if min(len(top), len(parent)) < 5:
         return False
     near_parent = cKDTree(parent).query(top, distance_upper_bound=TILT_CONTACT_M)[0] < TILT_CONTACT_M
     near_top = cKDTree(top).query(parent, distance_upper_bound=TILT_CONTACT_M)[0] < TILT_CONTACT_M
     if min(near_parent.sum(), near_top.sum()) < 5:
         return False
-    step = float(np.median(top_centres[near_parent]) - np.median(parent_centres[near_top]))
+    step = float(np.median(centres[k][near_parent]) - np.median(centres[k - 1][near_top]))
     return step < MAX_TILT_STEP_LAYERS
 
 
