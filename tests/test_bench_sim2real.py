@@ -17,7 +17,7 @@ import pytest
 from conftest import run_cli
 
 from spare_twin.bench import capture, sim2real
-from spare_twin.bench.scoring import answer_stats, bench_table, score_prediction
+from spare_twin.bench.scoring import answer_stats, bench_markdown, bench_table, score_prediction
 from spare_twin.bench.settings import BenchConfig, capture_settings
 from spare_twin.compare import answers as compare_answers
 from spare_twin.errors import SpareTwinError
@@ -111,6 +111,13 @@ def test_bench_table_rows_sides_per_n_and_goals():
     assert not table["goals"]["combined_real_count_at_least_0.95"]
     assert table["goals"]["net_real_count_at_least_0.90"]
     assert table["goals"]["predict_at_most_10_s_up_to_30_frames_640x480"]
+    # a network that refuses every real capture (a fixed-rig network on hand-held sweeps) is judged on
+    # none: it refuses them, as issue 28 asks, neither meeting nor missing the count goals
+    r3 = _result(1, {"sim_rig": good, "sim_cameras": bad, "real": bad})
+    rig_only = bench_table([r3], ["net"])
+    assert rig_only["goals"]["net_real_count_at_least_0.90"] == "refused"
+    assert rig_only["goals"]["net_real_within_5_points_of_sim_rig"] == "refused"
+    assert "refuses every capture here" in bench_markdown(rig_only)
 
 
 def test_time_goal_judged_on_captures_of_30_frames_at_640x480_or_less():
