@@ -97,3 +97,29 @@ def test_every_shipped_training_configuration_resolves(path):
     init_from = preset.train.init_from
     # a fine-tuning stage starts from a shipped model or from the run of the stage before it
     assert init_from is None or (ROOT / init_from).is_file() or init_from.startswith("runs/"), init_from
+
+
+def test_the_profile_networks_layer_histogram_says_where_the_plates_lie_wherever_they_are():
+    from spare_twin.errors import SpareTwinError
+    from spare_twin.nets.presets import NetConfig
+
+    net = NetConfig("profile", "multitask", "depth", mode="profile", frames=3, height=64, width=80, layer_bins=31)
+    model = build_model(net)
+
+    def plates(first_row: int, first_col: int) -> torch.Tensor:
+        """Five plates of 5 x 20 cells at layers 0..4 (mean t in channel 1), occupancy in channel 0."""
+        x = torch.zeros(1, 3, 64, 80)
+        for k in range(5):
+            rows, cols = slice(first_row + 8 * k, first_row + 8 * k + 5), slice(first_col, first_col + 20)
+            x[0, 0, rows, cols], x[0, 1, rows, cols] = 1.0, float(k)
+        return x
+
+    h = model.layer_histogram(plates(2, 5))[0]
+    centres = model.layer_centres
+    for k in range(5):
+        assert float(h[centres == k]) == pytest.approx(0.2, abs=1e-3)  # each plate's share of the cells
+    assert float(h[centres >= 5].sum()) < 1e-3 and float(h[centres <= -1].sum()) < 1e-3  # no sixth plate
+    assert torch.allclose(model.layer_histogram(plates(20, 50)), model.layer_histogram(plates(2, 5)))
+    with pytest.raises(SpareTwinError, match="layer_bins"):
+        NetConfig("conv3d", "count", "depth", layer_bins=31)
+

@@ -28,6 +28,9 @@ from spare_twin.nets.presets import NetConfig
 
 #: ProfileNet's convolutions that halve the resolution (64 x 80 -> 8 x 10 with the preset's five).
 PROFILE_STRIDES = (0, 1, 3)
+#: The profile network's layer histogram spans t = -LAYER_RANGE..LAYER_RANGE layers (`NetConfig.layer_bins`):
+#: links 1..6 lie at 1..6, or at -1..-6 where the profile could not tell the chain's sign.
+LAYER_RANGE = 7.5
 
 
 def paper_head(in_features: int, out: int, hidden: int, dropout: float) -> nn.Sequential:
@@ -222,8 +225,14 @@ class ProfileNet(nn.Module):
                 h, w = (h + 1) // 2, (w + 1) // 2
         layers += [nn.Conv2d(cin, 32, 1), nn.ReLU(inplace=True)]
         self.cnn = nn.Sequential(*layers)
+        if cfg.layer_bins:
+            self.register_buffer("layer_centres", torch.linspace(-LAYER_RANGE, LAYER_RANGE, cfg.layer_bins))
+            self.layer_norm = nn.BatchNorm1d(cfg.layer_bins)
         self.fc = nn.Sequential(
-            nn.Flatten(), nn.Linear(32 * h * w, cfg.fc_hidden), nn.ReLU(inplace=True), nn.Dropout(cfg.dropout)
+            nn.Flatten(),
+            nn.Linear(32 * h * w + cfg.layer_bins, cfg.fc_hidden),
+            nn.ReLU(inplace=True),
+            nn.Dropout(cfg.dropout),
         )
         self.heads = nn.ModuleDict(
             {"count_logits": nn.Linear(cfg.fc_hidden, N_CLASSES), "lengths": nn.Linear(cfg.fc_hidden, SLOTS)}
@@ -233,8 +242,20 @@ class ProfileNet(nn.Module):
         if cfg.predict_angles:
             self.heads["angles_sincos"] = nn.Linear(cfg.fc_hidden, 2 * N_CLASSES)
 
+    def layer_histogram(self, x: torch.Tensor) -> torch.Tensor:
+        """(B, layer_bins): the share of the profile's occupied cells (channel 0) whose mean t
+        (channel 1, layers) lies near each bin's centre, soft (a Gaussian half a bin spacing wide)
+        so that a plate's cells between two centres count for both."""
+        occupied, t = x[:, 0].flatten(1), x[:, 1].flatten(1)
+        spacing = float(self.layer_centres[1] - self.layer_centres[0])
+        near = torch.exp(-0.5 * ((t[:, None, :] - self.layer_centres[None, :, None]) / (0.5 * spacing)) ** 2)
+        return (near * occupied[:, None, :]).sum(2) / occupied.sum(1, keepdim=True).clamp(min=1.0)
+
     def forward(self, x, **_):
-        h = self.fc(self.cnn(x))
+        features = self.cnn(x).flatten(1)
+        if self.cfg.layer_bins:
+            features = torch.cat([features, self.layer_norm(self.layer_histogram(x))], 1)
+        h = self.fc(features)
         out = {k: head(h) for k, head in self.heads.items()}
         if "angles_sincos" in out:
             sc = out.pop("angles_sincos").view(-1, N_CLASSES, 2)
