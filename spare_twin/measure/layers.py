@@ -324,11 +324,11 @@ MIN_PIECE_SHARE = 0.1
 
 def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int:
     """How many more pieces than links the layers 1..n of a reading hold (n as the reading counts
-    them, before any layer is found to be no link): pieces of a layer that are
-    not joined in the plane (within `radius_m`). A link is one plate, so each of its layers is one
-    piece; a reading that puts two separate parts of the chain in one layer has read a plate across
-    a layer boundary (the comb held still while joint play's leans climbed along a straight run of
-    short links: bench seed 30068, 3 links read as 1)."""
+    them, before any layer is found to be no link): pieces of a layer not joined in the plane
+    (within `radius_m`), each of at least `MIN_PIECE_POINTS` points and `MIN_PIECE_SHARE`. A link
+    is one plate, so each of its layers is one piece; a reading that puts two separate parts of the
+    chain in one layer has read a plate across a layer boundary (the comb held still while joint
+    play's leans climbed along a straight run of short links: bench seed 30068, 3 links read as 1)."""
     n = count_links(labels, cfg)[0] or 0
     labels = np.clip(labels, 0, n)
     extra = 0
@@ -356,12 +356,12 @@ def _measure_reading(
         layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
         x, rms = fit_layers(layers, n, cfg)
         centres = [centre_layers[labels_n == k] for k in range(n + 1)]
-        if n > 1 and (_top_layer_is_stray(x, layers, centres[n], n, cfg) or _cut_plate(layers, centres, n, n)):
+        if n > 1 and (_top_layer_is_stray(x, layers, centres[n], n, cfg) or _cut_plate(layers, centres, n)):
             n -= 1
             continue
         # the top layer settled first: a tilted plate cut in two lower down reads as a link of its own,
         # often one too short to print
-        cut = _unprintable_link(x, n, cfg) or next((k for k in range(2, n) if _cut_plate(layers, centres, k, n)), None)
+        cut = _unprintable_link(x, n, cfg) or next((k for k in range(2, n) if _cut_plate(layers, centres, k)), None)
         if cut is None:
             break
         above = labels >= cut  # its layer joins its parent's, and every layer above moves down one
@@ -412,8 +412,8 @@ MAX_TILT_STEP_LAYERS = 0.35
 TILT_CONTACT_M = 0.009
 
 
-def _cut_plate(layers: list[np.ndarray], centres: list[np.ndarray], k: int, n: int) -> bool:
-    """Whether layer k (1 < k <= n) is the far end of its parent's plate, tilted out of its layer by
+def _cut_plate(layers: list[np.ndarray], centres: list[np.ndarray], k: int) -> bool:
+    """Whether layer k (above layer 1) is the far end of its parent's plate, tilted out of its layer by
     the joint's play, not a link. A printed pin joint lets a link lean 1-4 deg out of the chain's
     plane about its own joint: a 54 mm link's tip ends 3-4 mm (half a layer or more) off its layer,
     and the rounding cuts the plate in two (bench seed 30009, 4 links counted 5, at the top; seed
