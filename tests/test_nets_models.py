@@ -122,3 +122,5 @@ def test_the_profile_networks_layer_histogram_says_where_the_plates_lie_wherever
     assert torch.allclose(model.layer_histogram(plates(20, 50)), model.layer_histogram(plates(2, 5)))
     with pytest.raises(SpareTwinError, match="layer_bins"):
         NetConfig("conv3d", "count", "depth", layer_bins=31)
+    with pytest.raises(SpareTwinError, match="at least 2 bins"):
+        NetConfig("profile", "multitask", "depth", mode="profile", frames=3, layer_bins=1)

@@ -227,6 +227,7 @@ class ProfileNet(nn.Module):
         self.cnn = nn.Sequential(*layers)
         if cfg.layer_bins:
             self.register_buffer("layer_centres", torch.linspace(-LAYER_RANGE, LAYER_RANGE, cfg.layer_bins))
+            self.layer_sigma = LAYER_RANGE / (cfg.layer_bins - 1)  # half the bins' spacing
             self.layer_norm = nn.BatchNorm1d(cfg.layer_bins)
         self.fc = nn.Sequential(
             nn.Flatten(),
@@ -247,8 +248,7 @@ class ProfileNet(nn.Module):
         (channel 1, layers) lies near each bin's centre, soft (a Gaussian half a bin spacing wide)
         so that a plate's cells between two centres count for both."""
         occupied, t = x[:, 0].flatten(1), x[:, 1].flatten(1)
-        spacing = float(self.layer_centres[1] - self.layer_centres[0])
-        near = torch.exp(-0.5 * ((t[:, None, :] - self.layer_centres[None, :, None]) / (0.5 * spacing)) ** 2)
+        near = torch.exp(-0.5 * ((t[:, None, :] - self.layer_centres[None, :, None]) / self.layer_sigma) ** 2)
         return (near * occupied[:, None, :]).sum(2) / occupied.sum(1, keepdim=True).clamp(min=1.0)
 
     def forward(self, x, **_):

@@ -111,6 +111,8 @@ class NetConfig:
             raise SpareTwinError("net.task: the naive counter + regressor combination is an e2e model")
         if self.layer_bins and self.arch != "profile":
             raise SpareTwinError("net.layer_bins: only the profile network reads a layer channel")
+        if self.layer_bins == 1:
+            raise SpareTwinError("net.layer_bins: 1: a histogram needs at least 2 bins (0: none)")
         if (self.arch == "profile") != (self.mode == "profile"):
             raise SpareTwinError(
                 "net.mode: the profile network reads the chain's profile (mode profile), and only it does"
