@@ -125,8 +125,9 @@ class LayersConfig:
     samples_per_link: int = 12
     follow_comb: bool = True
     """Read the layers a second way, the comb followed along the chain (`measure.plates`), and keep
-    that reading where it counts otherwise and fits far better (`FOLLOWED_RMS_SHARE`); False: one
-    comb of the layer pitch for the whole chain (the chain as designed, no play)."""
+    that reading where it counts otherwise and either holds one piece a layer where the comb's does
+    not (`split_layers`) or fits far better (`FOLLOWED_RMS_SHARE`); False: one comb of the layer
+    pitch for the whole chain (the chain as designed, no play)."""
     min_middle_link_m: float = _DEFAULT_PARTS["min_middle_link_m"]
     """A link between two joints measured shorter than this (the shortest its parts can print,
     `config.min_between_axes_mm_of`, less `LENGTH_ERROR_M`) is no link: a plate tilted by the joints'
@@ -347,7 +348,8 @@ def _measure_reading(
     p: np.ndarray, labels: np.ndarray, centre_layers: np.ndarray, print_scale: float, cfg: LayersConfig
 ) -> LayerMeasurement:
     """The chain of points `p` (s, t, z) with one reading of their layers: counted, fitted and
-    checked (a top layer that is no link, a link too short to print), or why it is no chain."""
+    checked (a top layer that is no link, a plate cut in two by its lean, a link too short to
+    print), or why it is no chain."""
     n, per_layer = count_links(labels, cfg)
     if n is None:
         return LayerMeasurement(None, None, None, per_layer)
