@@ -36,7 +36,6 @@ def _network_says_one_link() -> Evaluation:
         "measured_n": measured_n,
         "measured_lengths_pu": TRUE_LENGTHS * (measured_n > 0)[:, None],
         "measured_angles_rad": np.zeros((4, 6), np.float32),
-        "measured_next_points": np.zeros(4, np.int64),
     }
     return evaluation_of(pred, "test", "m.pt", "profile-depth-multitask", "data")
 

@@ -9,7 +9,14 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from spare_twin.measure.layers import LayersConfig, count_links, layer_readings, measure_layers, split_layers
+from spare_twin.measure.layers import (
+    LayersConfig,
+    count_links,
+    layer_readings,
+    measure_layers,
+    past_last_layer,
+    split_layers,
+)
 from spare_twin.observe.on_object import tracked_into_register
 from spare_twin.observe.points import PointsConfig, PosedView, object_candidates, without_flying_pixels
 from spare_twin.observe.views import PosedViews, recording_views
@@ -204,6 +211,21 @@ def test_bench_captures_whose_links_lean_off_the_comb_are_counted():
     one_comb, followed = layer_readings(p[:, 0], p[:, 1], p[:, 2], v[:, 1], LayersConfig())
     assert split_layers(p[:, [0, 2]], one_comb[0], LayersConfig()) == 1
     assert split_layers(p[:, [0, 2]], followed[0], LayersConfig()) == 0
+
+
+def test_a_reading_past_the_last_layer_a_chain_can_have_loses():
+    """Bench seed 30094 (5 links, SR300, tracked poses, every effect): the one comb read its leaning
+    plates across 8 layers, 95 of its 1,481 points past the sixth link's layer, and counted 6 after
+    merging; 0.6.3 kept that reading (its RMS a hair lower) and `predict` gave no answer. The comb
+    followed along the chain reads 5 layers, and a reading no chain can have loses to it."""
+    points, dirs, print_scale, sign_known, lengths_pu = _bench_points("seed30094")
+    m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
+    assert m.n_links == 5, m.points_per_layer
+    assert np.abs(m.lengths_pu - lengths_pu).max() < 0.1, (m.lengths_pu, lengths_pu)
+    keep = points[:, 2] > LayersConfig().min_height_m
+    p, v = points[keep], dirs[keep]
+    one_comb, followed = layer_readings(p[:, 0], p[:, 1], p[:, 2], v[:, 1], LayersConfig())
+    assert past_last_layer(one_comb[0]) and not past_last_layer(followed[0])
 
 
 def test_a_side_in_the_projectors_shadow_still_counts(printed_object, tmp_path):

@@ -14,18 +14,15 @@ LENGTH_SLOTS = MAX_MOVING_LINKS + 1
 
 def measurement_slots(m: LayerMeasurement) -> dict[str, np.ndarray]:
     """The measurement as fixed-size arrays (a DataLoader batches them): `measured_n` (0 = none),
-    `measured_lengths_pu` (7, zero past the count), `measured_angles_rad` (6) and
-    `measured_next_points` (the points in the layer past the count: a hidden last link's)."""
+    `measured_lengths_pu` (7, zero past the count) and `measured_angles_rad` (6)."""
     lengths = np.zeros(LENGTH_SLOTS, np.float32)
     angles = np.zeros(MAX_MOVING_LINKS, np.float32)
     n = m.n_links or 0
     if n:
         lengths[: n + 1] = m.lengths_pu
         angles[:n] = m.angles_rad
-    next_points = m.points_per_layer[n + 1] if n and n + 1 < len(m.points_per_layer) else 0
     return {
         "measured_n": np.int64(n),
         "measured_lengths_pu": lengths,
         "measured_angles_rad": angles,
-        "measured_next_points": np.int64(next_points),
     }

@@ -10,7 +10,7 @@ import math
 import numpy as np
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims
-from spare_twin.measure.layers import LayerMeasurement
+from spare_twin.measure.layers import MAX_PAST_LAST_LAYER_FRACTION, LayerMeasurement
 from spare_twin.observe.chain import ChainObservation
 from spare_twin.predict.estimate import Estimate, MeasurementEvidence, NetworkEvidence
 from spare_twin.predict.parts import TRAINED_PARTS, parts_words
@@ -22,10 +22,6 @@ MIN_COUNT_PROBABILITY = 0.5
 #: 96 x 128 views 800-900; single real frames of a shelf with no chain, 29 and 69, on which the
 #: profile network said 6 links at p = 0.96 and 0.98.
 MIN_CHAIN_POINTS = 100
-#: A SPARE chain has links in layers 0..6 only; where more than this share of the points lie past the
-#: sixth link's layer, what was measured is thicker than any chain (0 on simulated captures; 30-44 %
-#: on single real frames of a shelf where the layers still counted 5 or 6 links).
-MAX_PAST_LAST_LAYER_FRACTION = 0.05
 #: Views that go less far round the chain than this (degrees about its base axis) see its plates from
 #: one side: the profile network was trained on captures from at least 3 neighbouring cameras of an
 #: 8-camera ring (90 deg and more), and the layer measurement was developed on such sweeps. Single

@@ -210,7 +210,7 @@ def answer_of(
     elif answer == "measurement":
         chosen, source = measurement, _all(measurement, "measurement")
     else:
-        chosen, source = combined(res, m, network, measurement)
+        chosen, source = combined(m, network, measurement)
     return Prediction(chosen, source, network, measurement, timings_s=timings, **common)
 
 
