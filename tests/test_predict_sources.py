@@ -136,35 +136,25 @@ def test_help_is_true(capsys):
     assert "--answer {combined,network,measurement}" in text and f"{DESIGN_CONTRACT_LENGTHS_KEY} " not in text
 
 
-def test_a_hidden_last_link_labels_each_slot():
-    """The network sure of one link more than the layers count, with points in that layer: its count
-    and its last link, the measured links the measurement's; `source` names each slot's."""
-    import torch
-
+def test_a_network_sure_of_one_link_more_leaves_the_measured_answer_whole():
+    """Until 0.6.4 the network's count stood where it was sure of one link more than the layers
+    counted (a hidden last link), its last link mixed into the measured lengths slot by slot. The
+    measured chain now stands whole, every field the measurement's; the network's estimate stays
+    beside it, and stands alone only where the measurement found no chain."""
     from spare_twin.measure.layers import LayerMeasurement
     from spare_twin.predict.combine import combined
     from spare_twin.predict.estimate import Estimate, Prediction
 
-    probabilities = torch.zeros(1, 6)
-    probabilities[0, 2] = 0.9
-    res = {
-        "pred_n": torch.tensor([3]),
-        "lengths_e2e": torch.tensor([[1.0, 0.5, 0.5, 0.4, 0, 0, 0]]),
-        "angles": torch.full((1, 6), 0.3),
-        "probabilities": probabilities,
-    }
     m = LayerMeasurement(2, np.array([1.1, 0.6, 0.7]), np.array([0.1, 0.2]), (300, 100, 80, 6, 0, 0, 0, 0), 0.0003)
     network = Estimate(3, (1.0, 0.5, 0.5, 0.4), (0.3, 0.3, 0.3))
     measurement = Estimate(2, (1.1, 0.6, 0.7), (0.1, 0.2))
-    answer, source = combined(res, m, network, measurement)
-    assert answer.n_links == 3 and answer.link_lengths_pu == pytest.approx((1.1, 0.6, 0.7, 0.4))
-    assert answer.joint_angles_rad == pytest.approx((0.1, 0.2, 0.3))
-    assert source == {
-        "n_links": "network",
-        "link_lengths_pu": ("measurement", "measurement", "measurement", "network"),
-        "joint_angles_rad": ("measurement", "measurement", "network"),
-    }
+    answer, source = combined(m, network, measurement)
+    assert answer.n_links == 2 and answer.link_lengths_pu == pytest.approx((1.1, 0.6, 0.7))
+    assert set(source.values()) == {"measurement"}
     p = Prediction(answer, source, network, measurement, "combined", "profile", "m.pt", "rec", 0.08)
-    assert p.to_json()["source"]["link_lengths_pu"] == ["measurement", "measurement", "measurement", "network"]
+    assert p.to_json()["source"] == "measurement" and p.to_json()["network"]["n_links"] == 3
+    nothing = LayerMeasurement(None, None, None, (300, 5, 0, 0, 0, 0, 0, 0))
+    answer, source = combined(nothing, network, Estimate.none("no link measured"))
+    assert answer.n_links == 3 and set(source.values()) == {"network"}
     with pytest.raises(ValueError):
         Estimate(None, None, None)  # no count goes with a reason

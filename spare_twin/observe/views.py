@@ -5,10 +5,13 @@
 - several cameras with poses (a rig, fixed or not): every camera at one frame (default the middle one),
   because the object may move between frames;
 - one camera (a hand-held sweep round a still object): up to `max_frames` of its frames, spread over
-  the sweep; its poses from the recording where it has them (a tracked camera, a registered copy),
-  brought into register on the object from there (`observe.on_object.tracked_into_register`: a
-  tracker's poses are a few tenths of a degree and millimetres off), otherwise registered here
-  (`capture.registration.register_frames`), in memory: predict never writes into the user's recording.
+  the sweep, registered here (`capture.registration.register_frames`), in memory: predict never writes
+  into the user's recording. Where the recording has poses (a tracked camera, a registered copy) they
+  start the registration and set its world: a tracker's poses are a few tenths of a degree and
+  millimetres off, each on its own, and frame-to-frame matching takes that out where levelling and
+  matching on the object alone (`observe.on_object.tracked_into_register`, before release 0.6.4) did
+  not (60 development captures with tracked poses, bench seeds 30006-30125: 55 counted right
+  against 52).
 
 Every view's flying pixels (readings between two surfaces at a depth edge) are dropped as it is read
 (`observe.points.without_flying_pixels`), before registration or fusion sees them.
@@ -36,8 +39,11 @@ from spare_twin.recording import Recording
 
 #: `PosedViews.source` of a sweep whose poses were registered here.
 REGISTERED_SWEEP = "sweep, registered"
-#: `PosedViews.source` of a sweep with its own (a tracker's) poses, brought into register on the object here.
-TRACKED_SWEEP = "sweep, tracked poses brought into register on the object"
+#: `PosedViews.source` of a sweep with its own (a tracker's) poses, registered here starting from them.
+TRACKED_SWEEP = "sweep, tracked poses refined by registration"
+#: ... where registration cannot start (a frame with next to nothing in range): the tracker's poses
+#: levelled on the table and brought into register on the object only (`on_object.tracked_into_register`).
+TRACKED_AS_GIVEN = "sweep, tracked poses brought into register on the object"
 
 
 @dataclass(frozen=True)
@@ -47,8 +53,8 @@ class PosedViews:
     views: tuple[PosedView, ...]
     source: str
     """"cameras" (every posed camera at one frame), "sweep" (one camera's posed frames, as given),
-    `TRACKED_SWEEP` (one camera's posed frames, brought into register here) or `REGISTERED_SWEEP`
-    (one camera's frames, poses estimated here)."""
+    `TRACKED_SWEEP` (one camera's posed frames, registered here starting from their poses) or
+    `REGISTERED_SWEEP` (one camera's frames, poses estimated here)."""
     registration_s: float = 0.0
     """Seconds spent estimating the poses."""
     frames: tuple[RGBDFrame, ...] | None = None
@@ -56,6 +62,9 @@ class PosedViews:
     on its own (`sweep_part`)."""
     frames_in_recording: int | None = None
     """How many frames the source has (a sweep's views are a sample of them)."""
+    given_poses: np.ndarray | None = None
+    """(len(frames), 4, 4) a tracked sweep's own camera-to-world poses of `frames`: where its
+    registration (and a part's) starts, and the world it is expressed in."""
 
 
 def _without_flying_pixels(fr: RGBDFrame, cfg: PointsConfig = PointsConfig()) -> RGBDFrame:
@@ -68,14 +77,19 @@ def _without_flying_pixels(fr: RGBDFrame, cfg: PointsConfig = PointsConfig()) ->
     return RGBDFrame(fr.color, np.where(flying, np.uint16(0), fr.depth_u16), fr.depth_scale, fr.K)
 
 
-def _registered(frames: list[RGBDFrame], progress: bool) -> tuple[list[PosedView], float]:
-    t0 = time.perf_counter()
-    poses = register_frames(frames, RegistrationConfig(), None, progress).poses
-    views = [
-        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, P, fr.color)
-        for fr, P in zip(frames, poses)
+def _as_given(frames: list[RGBDFrame], poses: np.ndarray) -> list[PosedView]:
+    return [
+        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, T, fr.color)
+        for fr, T in zip(frames, poses)
     ]
-    return views, time.perf_counter() - t0
+
+
+def _registered(
+    frames: list[RGBDFrame], progress: bool, given_poses: np.ndarray | None = None
+) -> tuple[list[PosedView], float]:
+    t0 = time.perf_counter()
+    poses = register_frames(frames, RegistrationConfig(), given_poses, progress).poses
+    return _as_given(frames, poses), time.perf_counter() - t0
 
 
 def recording_views(
@@ -115,25 +129,36 @@ def recording_views(
         frames = [_without_flying_pixels(fr) for fr in load_frames(rec, cam.name, picks)]
         views, seconds = _registered(frames, progress)
         return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
-    views = [
-        without_flying_pixels(PosedView(rec.depth_m(cam.name, f), cam.K, poses[f], rec.color(cam.name, f)))
-        for f in picks
-    ]
+    frames = [_without_flying_pixels(fr) for fr in load_frames(rec, cam.name, picks)]
+    given = np.stack([np.asarray(poses[f], np.float64) for f in picks])
+    try:
+        views, seconds = _registered(frames, progress, given)  # a tracker's poses are approximate
+    except SpareTwinError:  # a frame with next to nothing in range
+        return tracked_as_given(frames, given, rec.n_frames)
+    return PosedViews(tuple(views), TRACKED_SWEEP, seconds, tuple(frames), rec.n_frames, given_poses=given)
+
+
+def tracked_as_given(frames: list[RGBDFrame], given_poses: np.ndarray, frames_in_recording: int | None) -> PosedViews:
+    """A tracked sweep's frames at the tracker's own poses, only levelled on the table and brought into
+    register on the object (`observe.on_object.tracked_into_register`): where registration from those
+    poses cannot start, or fuses into no chain (`measure.chain.measure_views`)."""
     t0 = time.perf_counter()
-    views = tracked_into_register(views)  # a tracker's poses are approximate
-    return PosedViews(tuple(views), TRACKED_SWEEP, time.perf_counter() - t0, frames_in_recording=rec.n_frames)
+    views = tracked_into_register(_as_given(frames, given_poses))
+    return PosedViews(tuple(views), TRACKED_AS_GIVEN, time.perf_counter() - t0, frames_in_recording=frames_in_recording)
 
 
 def sweep_part(seen: PosedViews, part: tuple[float, float], progress: bool = False) -> PosedViews:
     """A share of a registered sweep's frames (start, stop), e.g. (0.5, 1.0) its second half,
-    registered on its own."""
+    registered on its own (from their given poses, a tracked sweep's)."""
     if seen.frames is None:
         raise ValueError("sweep_part: only a sweep registered here has its frames")
     n = len(seen.frames)
     start = int(part[0] * n)
-    frames = list(seen.frames[start : max(int(np.ceil(part[1] * n)), start + 1)])
-    views, seconds = _registered(frames, progress)
-    return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), seen.frames_in_recording)
+    stop = max(int(np.ceil(part[1] * n)), start + 1)
+    frames = list(seen.frames[start:stop])
+    given = None if seen.given_poses is None else seen.given_poses[start:stop]
+    views, seconds = _registered(frames, progress, given)
+    return PosedViews(tuple(views), seen.source, seconds, tuple(frames), seen.frames_in_recording, given_poses=given)
 
 
 def observe_chain(

@@ -123,9 +123,9 @@ class Prediction:
     answer: Estimate
     """The estimate `--answer` asked for (its evidence is the estimates' own, under `network` and
     `measurement`)."""
-    source: dict[str, str | tuple[str, ...]] | None
-    """Per answer field (`FIELDS`), the estimate it came from ("network" or "measurement"); a length
-    or angle list mixed from both names the source of each slot. None where there is no answer."""
+    source: dict[str, str] | None
+    """Per answer field (`FIELDS`), the estimate it came from ("network" or "measurement"). None where
+    there is no answer."""
     network: Estimate | None
     """The network's own estimate; None where no network ran (`--answer measurement`, no chain in view)."""
     measurement: Estimate | None
@@ -183,10 +183,8 @@ class Prediction:
         """`source` in the JSON: one name where every field came from one estimate, else per field."""
         if self.source is None:
             return None
-        names = {name for v in self.source.values() for name in ((v,) if isinstance(v, str) else v)}
-        if len(names) == 1:
-            return names.pop()
-        return {k: v if isinstance(v, str) else list(v) for k, v in self.source.items()}
+        names = set(self.source.values())
+        return names.pop() if len(names) == 1 else dict(self.source)
 
     def to_json(self) -> dict:
         out: dict = {
@@ -215,7 +213,7 @@ class Prediction:
         lines = [f"answer ({self.answer_kind}): {_estimate_words(self.answer, self.print_scale)}"]
         if self.source is not None:
             src = self.source_json()
-            words = f"the {src}" if isinstance(src, str) else "; ".join(f"{k} from {_names(v)}" for k, v in src.items())
+            words = f"the {src}" if isinstance(src, str) else "; ".join(f"{k} from the {v}" for k, v in src.items())
             lines.append(f"  from: {words}")
         for name, est in (("network", self.network), ("measurement", self.measurement)):
             lines.append(f"{name}: " + ("not run" if est is None else _estimate_words(est, None)))
@@ -223,12 +221,6 @@ class Prediction:
         given = "the default parts" if self.parts == TRAINED_PARTS else "the parts given"
         lines.append(f"parts: {parts_words(self.parts)} ({given})")
         return lines
-
-
-def _names(v) -> str:
-    if isinstance(v, str):
-        return f"the {v}"
-    return "slot by slot the " + ", ".join(v)
 
 
 def _estimate_words(e: Estimate, print_scale: float | None) -> str:
