@@ -6,12 +6,12 @@
   because the object may move between frames;
 - one camera (a hand-held sweep round a still object): up to `max_frames` of its frames, spread over
   the sweep, registered here (`capture.registration.register_frames`), in memory: predict never writes
-  into the user's recording. Where the recording has poses (a tracked camera, a registered copy) they
-  start the registration and set its world: a tracker's poses are a few tenths of a degree and
-  millimetres off, each on its own, and frame-to-frame matching takes that out where levelling and
-  matching on the object alone (`observe.on_object.tracked_into_register`, before release 0.6.4) did
-  not (60 development captures with tracked poses, bench seeds 30006-30125: 55 counted right
-  against 52).
+  into the user's recording. Where the recording has a tracker's poses they start the registration
+  and set its world: they are a few tenths of a degree and millimetres off, each on its own, and
+  frame-to-frame matching takes that out where levelling and matching on the object alone
+  (`observe.on_object.tracked_into_register`, before release 0.6.4) did not (60 development captures
+  with tracked poses, bench seeds 30006-30125: 55 counted right against 52). Poses `capture register`
+  stored are a registration's already: they are only brought into register on the object.
 
 Every view's flying pixels (readings between two surfaces at a depth edge) are dropped as it is read
 (`observe.points.without_flying_pixels`), before registration or fusion sees them.
@@ -44,6 +44,9 @@ TRACKED_SWEEP = "sweep, tracked poses refined by registration"
 #: ... where registration cannot start (a frame with next to nothing in range): the tracker's poses
 #: levelled on the table and brought into register on the object only (`on_object.tracked_into_register`).
 TRACKED_AS_GIVEN = "sweep, tracked poses brought into register on the object"
+#: `PosedViews.source` of a sweep whose poses `capture register` stored: registered already, brought
+#: into register on the object here.
+REGISTERED_COPY = "sweep, poses from capture register, brought into register on the object"
 
 
 @dataclass(frozen=True)
@@ -131,6 +134,8 @@ def recording_views(
         return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
     frames = [_without_flying_pixels(fr) for fr in load_frames(rec, cam.name, picks)]
     given = np.stack([np.asarray(poses[f], np.float64) for f in picks])
+    if rec.registration is not None and rec.registration.camera == cam.name:  # `capture register`'s poses
+        return tracked_as_given(frames, given, rec.n_frames, REGISTERED_COPY)
     try:
         views, seconds = _registered(frames, progress, given)  # a tracker's poses are approximate
     except SpareTwinError:  # a frame with next to nothing in range
@@ -138,13 +143,15 @@ def recording_views(
     return PosedViews(tuple(views), TRACKED_SWEEP, seconds, tuple(frames), rec.n_frames, given_poses=given)
 
 
-def tracked_as_given(frames: list[RGBDFrame], given_poses: np.ndarray, frames_in_recording: int | None) -> PosedViews:
-    """A tracked sweep's frames at the tracker's own poses, only levelled on the table and brought into
-    register on the object (`observe.on_object.tracked_into_register`): where registration from those
-    poses cannot start, or fuses into no chain (`measure.chain.measure_views`)."""
+def tracked_as_given(
+    frames: list[RGBDFrame], given_poses: np.ndarray, frames_in_recording: int | None, source: str = TRACKED_AS_GIVEN
+) -> PosedViews:
+    """A sweep's frames at their given poses, only levelled on the table and brought into register on the
+    object (`observe.on_object.tracked_into_register`): a tracker's where registration from them cannot
+    start or fuses into no chain (`measure.chain.measure_views`); those `capture register` stored."""
     t0 = time.perf_counter()
     views = tracked_into_register(_as_given(frames, given_poses))
-    return PosedViews(tuple(views), TRACKED_AS_GIVEN, time.perf_counter() - t0, frames_in_recording=frames_in_recording)
+    return PosedViews(tuple(views), source, time.perf_counter() - t0, frames_in_recording=frames_in_recording)
 
 
 def sweep_part(seen: PosedViews, part: tuple[float, float], progress: bool = False) -> PosedViews:
