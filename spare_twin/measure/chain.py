@@ -15,20 +15,11 @@ from spare_twin.observe.chain import ChainObservation, observe_views
 from spare_twin.observe.on_object import register_on_object
 from spare_twin.observe.points import PosedView
 from spare_twin.observe.profile import ProfileConfig
-from spare_twin.observe.views import (
-    REGISTERED_SWEEP,
-    TRACKED_SWEEP,
-    PosedViews,
-    recording_views,
-    sweep_part,
-    tracked_as_given,
-)
+from spare_twin.observe.views import REGISTERED_SWEEP, PosedViews, recording_views, sweep_part
 from spare_twin.recording import Recording
 
-#: What `ChainObservation.source` gains once a sweep's views were brought into register on the object.
-ON_OBJECT = "brought into register on the object"
-#: `ChainObservation.source` of a registered sweep's views brought into register on the object.
-ON_OBJECT_SWEEP = f"{REGISTERED_SWEEP}, {ON_OBJECT}"
+#: `ChainObservation.source` once a registered sweep's views were brought into register on the object.
+ON_OBJECT_SWEEP = "sweep, registered, brought into register on the object"
 #: Parts of a registered sweep looked at again when the whole gives no chain (`measure_views`).
 SWEEP_PARTS = ((0.0, 0.5), (0.5, 1.0), (0.25, 0.75))
 #: Fewer registered frames than this are not split.
@@ -69,34 +60,31 @@ def measure_views(
     with the geometry of `parts` (`ProfileConfig.for_parts`, `LayersConfig.for_parts`); the
     observation's `timings_s` gain "measurement", all summed over the tries.
 
-    A sweep registered here (its poses estimated or, a tracker's, refined here) is measured with its
-    views brought into register on the object (`observe.on_object`): views that slipped by a degree or a
-    few millimetres along the table blur the chain's 6.4 mm layers (a 2-link RealSense sweep fused 14.9
-    mm RMS off any chain as registered, 0.3 mm after). Where both give a chain, the closer fit (RMS) is
-    kept: matching on the object can also pull apart a sweep that registration had in register (bench
-    seed 30119, 6 links: 0.3 mm as registered, 2 links at 3.9 mm after; on the 120 captures of seeds
-    30006-30125 this changed that count alone). Where the views as registered give no chain at all (the
-    fused object too wide, not standing on a 12 mm column, or blurred centimetres off any chain), the
-    registration is off by more than the object can pull back somewhere, and the sweep's parts are
-    looked at too: its first half, its second half and its middle half, each registered on its own and
-    brought into register on the object. Registration errors come in runs: a sweep's views slide apart
-    along the table where the object shows little (a Kinect at a metre and more), and the half without
-    that run fuses into one chain; so does the half of a sweep before (or after) the object was bumped.
-    The try whose chain fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends
-    the search. A tracked sweep, registered here from its own poses (`observe.views`), is looked at the
-    same way but not split: where it fuses into no chain, the other try is the tracker's poses as they
-    were, levelled and brought into register on the object (`observe.views.tracked_as_given`; parts of
-    an empty table's tracked sweep found a 1-link chain in its clutter). Other views with poses (a rig,
-    views given in memory) are looked at once. Views that go
-    less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
+    A sweep registered here is measured with its views brought into register on the object
+    (`observe.on_object`): views that slipped by a degree or a few millimetres along the table blur
+    the chain's 6.4 mm layers (a 2-link RealSense sweep fused 14.9 mm RMS off any chain as registered,
+    0.3 mm after). Where both give a chain, the closer fit (RMS) is kept: matching on the object can
+    also pull apart a sweep that registration had in register (bench seed 30119, 6 links: 0.3 mm as
+    registered, 2 links at 3.9 mm after; on the 120 captures of seeds 30006-30125 this changed that
+    count alone). Where the views as registered give no chain at all (the fused object too wide, not
+    standing on a 12 mm column, or blurred centimetres off any chain), the registration is off by more
+    than the object can pull back somewhere, and the sweep's parts are looked at too: its first half,
+    its second half and its middle half, each registered on its own and brought into register on the
+    object. Registration errors come in runs: a sweep's views slide apart along the table where the
+    object shows little (a Kinect at a metre and more), and the half without that run fuses into one
+    chain; so does the half of a sweep before (or after) the object was bumped. The try whose chain
+    fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends the search. Views
+    with their own poses (a rig, a tracked camera) are looked at once, as `observe.views` placed them
+    (a tracker's approximate poses are levelled and brought into register on the object there).
+    Views that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
     `spare_twin.predict.abstain` gives no answer on them)."""
     views = list(seen.views)
     geometry = Geometry(ProfileConfig.for_parts(parts), LayersConfig.for_parts(parts))
     seen_once = observe_views(views, seen.source, seen.registration_s, print_scale, profile_cfg=geometry.profile)
     as_registered = _measure(seen_once, print_scale, geometry, min_arc_deg)
-    if seen.source not in (REGISTERED_SWEEP, TRACKED_SWEEP):
+    if seen.source != REGISTERED_SWEEP:
         return as_registered
-    on_object, measured = _on_object(views, seen.source, seen.registration_s, print_scale, geometry)
+    on_object, measured = _on_object(views, seen.registration_s, print_scale, geometry)
     seconds = _add(on_object.timings_s, as_registered[0].timings_s, but="registration")
     if as_registered[1].n_links is not None or len(views) < MIN_FRAMES_TO_SPLIT:
         best = min(((on_object, measured), as_registered), key=_fit_rank)
@@ -105,22 +93,11 @@ def measure_views(
     best = None
     if measured.n_links is not None:
         best = (dataclasses.replace(on_object, source=f"{on_object.source}: {why}"), measured)
-    if seen.source == TRACKED_SWEEP:  # not split: the tracker's poses as they were are the other try
-        alone = tracked_as_given(list(seen.frames), seen.given_poses, seen.frames_in_recording)
-        piece = observe_views(
-            list(alone.views), f"{alone.source}: {why}", alone.registration_s, print_scale, profile_cfg=geometry.profile
-        )
-        piece, m = _measure(piece, print_scale, geometry)
-        seconds = _add(seconds, piece.timings_s)
-        if m.n_links is not None and (best is None or m.rms_m < best[1].rms_m):
-            best = (piece, m)
-        found, measured = best or as_registered
-        return dataclasses.replace(found, timings_s=seconds), measured
     for part in SWEEP_PARTS:
         if best is not None and best[1].rms_m <= CLEAN_PART_RMS_M:
             break
         part_views = sweep_part(seen, part, progress)
-        piece, m = _on_object(list(part_views.views), seen.source, part_views.registration_s, print_scale, geometry)
+        piece, m = _on_object(list(part_views.views), part_views.registration_s, print_scale, geometry)
         seconds = _add(seconds, piece.timings_s)
         if m.n_links is not None and (best is None or m.rms_m < best[1].rms_m):
             share = f"frames {100 * part[0]:.0f}-{100 * part[1]:.0f} % of the sweep"
@@ -129,13 +106,13 @@ def measure_views(
     return dataclasses.replace(found, timings_s=seconds), measured
 
 
-def _on_object(views: list[PosedView], source: str, registration_s: float, print_scale: float, geometry: Geometry):
+def _on_object(views: list[PosedView], registration_s: float, print_scale: float, geometry: Geometry):
     """(observation, measurement) of registered views brought into register on the object
     (`observe.on_object`); the time that takes is registration, after `registration_s` spent before."""
     t0 = time.perf_counter()
     on_object = register_on_object(views)
     registration_s += time.perf_counter() - t0
-    seen = observe_views(on_object, f"{source}, {ON_OBJECT}", registration_s, print_scale, profile_cfg=geometry.profile)
+    seen = observe_views(on_object, ON_OBJECT_SWEEP, registration_s, print_scale, profile_cfg=geometry.profile)
     return _measure(seen, print_scale, geometry)
 
 

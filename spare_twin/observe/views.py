@@ -5,13 +5,10 @@
 - several cameras with poses (a rig, fixed or not): every camera at one frame (default the middle one),
   because the object may move between frames;
 - one camera (a hand-held sweep round a still object): up to `max_frames` of its frames, spread over
-  the sweep, registered here (`capture.registration.register_frames`), in memory: predict never writes
-  into the user's recording. Where the recording has a tracker's poses they start the registration
-  and set its world: they are a few tenths of a degree and millimetres off, each on its own, and
-  frame-to-frame matching takes that out where levelling and matching on the object alone
-  (`observe.on_object.tracked_into_register`, before release 0.6.4) did not (60 development captures
-  with tracked poses, bench seeds 30006-30125: 55 counted right against 52). Poses `capture register`
-  stored are a registration's already: they are only brought into register on the object.
+  the sweep; its poses from the recording where it has them (a tracked camera, a registered copy),
+  brought into register on the object from there (`observe.on_object.tracked_into_register`: a
+  tracker's poses are a few tenths of a degree and millimetres off), otherwise registered here
+  (`capture.registration.register_frames`), in memory: predict never writes into the user's recording.
 
 Every view's flying pixels (readings between two surfaces at a depth edge) are dropped as it is read
 (`observe.points.without_flying_pixels`), before registration or fusion sees them.
@@ -39,14 +36,8 @@ from spare_twin.recording import Recording
 
 #: `PosedViews.source` of a sweep whose poses were registered here.
 REGISTERED_SWEEP = "sweep, registered"
-#: `PosedViews.source` of a sweep with its own (a tracker's) poses, registered here starting from them.
-TRACKED_SWEEP = "sweep, tracked poses refined by registration"
-#: ... where registration cannot start (a frame with next to nothing in range): the tracker's poses
-#: levelled on the table and brought into register on the object only (`on_object.tracked_into_register`).
-TRACKED_AS_GIVEN = "sweep, tracked poses brought into register on the object"
-#: `PosedViews.source` of a sweep whose poses `capture register` stored: registered already, brought
-#: into register on the object here.
-REGISTERED_COPY = "sweep, poses from capture register, brought into register on the object"
+#: `PosedViews.source` of a sweep with its own (a tracker's) poses, brought into register on the object here.
+TRACKED_SWEEP = "sweep, tracked poses brought into register on the object"
 
 
 @dataclass(frozen=True)
@@ -56,8 +47,8 @@ class PosedViews:
     views: tuple[PosedView, ...]
     source: str
     """"cameras" (every posed camera at one frame), "sweep" (one camera's posed frames, as given),
-    `TRACKED_SWEEP` (one camera's posed frames, registered here starting from their poses) or
-    `REGISTERED_SWEEP` (one camera's frames, poses estimated here)."""
+    `TRACKED_SWEEP` (one camera's posed frames, brought into register here) or `REGISTERED_SWEEP`
+    (one camera's frames, poses estimated here)."""
     registration_s: float = 0.0
     """Seconds spent estimating the poses."""
     frames: tuple[RGBDFrame, ...] | None = None
@@ -65,9 +56,6 @@ class PosedViews:
     on its own (`sweep_part`)."""
     frames_in_recording: int | None = None
     """How many frames the source has (a sweep's views are a sample of them)."""
-    given_poses: np.ndarray | None = None
-    """(len(frames), 4, 4) a tracked sweep's own camera-to-world poses of `frames`: where its
-    registration (and a part's) starts, and the world it is expressed in."""
 
 
 def _without_flying_pixels(fr: RGBDFrame, cfg: PointsConfig = PointsConfig()) -> RGBDFrame:
@@ -80,19 +68,14 @@ def _without_flying_pixels(fr: RGBDFrame, cfg: PointsConfig = PointsConfig()) ->
     return RGBDFrame(fr.color, np.where(flying, np.uint16(0), fr.depth_u16), fr.depth_scale, fr.K)
 
 
-def _as_given(frames: list[RGBDFrame], poses: np.ndarray) -> list[PosedView]:
-    return [
-        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, T, fr.color)
-        for fr, T in zip(frames, poses)
-    ]
-
-
-def _registered(
-    frames: list[RGBDFrame], progress: bool, given_poses: np.ndarray | None = None
-) -> tuple[list[PosedView], float]:
+def _registered(frames: list[RGBDFrame], progress: bool) -> tuple[list[PosedView], float]:
     t0 = time.perf_counter()
-    poses = register_frames(frames, RegistrationConfig(), given_poses, progress).poses
-    return _as_given(frames, poses), time.perf_counter() - t0
+    poses = register_frames(frames, RegistrationConfig(), None, progress).poses
+    views = [
+        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, P, fr.color)
+        for fr, P in zip(frames, poses)
+    ]
+    return views, time.perf_counter() - t0
 
 
 def recording_views(
@@ -132,40 +115,25 @@ def recording_views(
         frames = [_without_flying_pixels(fr) for fr in load_frames(rec, cam.name, picks)]
         views, seconds = _registered(frames, progress)
         return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
-    frames = [_without_flying_pixels(fr) for fr in load_frames(rec, cam.name, picks)]
-    given = np.stack([np.asarray(poses[f], np.float64) for f in picks])
-    if rec.registration is not None and rec.registration.camera == cam.name:  # `capture register`'s poses
-        return tracked_as_given(frames, given, rec.n_frames, REGISTERED_COPY)
-    try:
-        views, seconds = _registered(frames, progress, given)  # a tracker's poses are approximate
-    except SpareTwinError:  # a frame with next to nothing in range
-        return tracked_as_given(frames, given, rec.n_frames)
-    return PosedViews(tuple(views), TRACKED_SWEEP, seconds, tuple(frames), rec.n_frames, given_poses=given)
-
-
-def tracked_as_given(
-    frames: list[RGBDFrame], given_poses: np.ndarray, frames_in_recording: int | None, source: str = TRACKED_AS_GIVEN
-) -> PosedViews:
-    """A sweep's frames at their given poses, only levelled on the table and brought into register on the
-    object (`observe.on_object.tracked_into_register`): a tracker's where registration from them cannot
-    start or fuses into no chain (`measure.chain.measure_views`); those `capture register` stored."""
+    views = [
+        without_flying_pixels(PosedView(rec.depth_m(cam.name, f), cam.K, poses[f], rec.color(cam.name, f)))
+        for f in picks
+    ]
     t0 = time.perf_counter()
-    views = tracked_into_register(_as_given(frames, given_poses))
-    return PosedViews(tuple(views), source, time.perf_counter() - t0, frames_in_recording=frames_in_recording)
+    views = tracked_into_register(views)  # a tracker's poses are approximate
+    return PosedViews(tuple(views), TRACKED_SWEEP, time.perf_counter() - t0, frames_in_recording=rec.n_frames)
 
 
 def sweep_part(seen: PosedViews, part: tuple[float, float], progress: bool = False) -> PosedViews:
     """A share of a registered sweep's frames (start, stop), e.g. (0.5, 1.0) its second half,
-    registered on its own (from their given poses, a tracked sweep's)."""
+    registered on its own."""
     if seen.frames is None:
         raise ValueError("sweep_part: only a sweep registered here has its frames")
     n = len(seen.frames)
     start = int(part[0] * n)
-    stop = max(int(np.ceil(part[1] * n)), start + 1)
-    frames = list(seen.frames[start:stop])
-    given = None if seen.given_poses is None else seen.given_poses[start:stop]
-    views, seconds = _registered(frames, progress, given)
-    return PosedViews(tuple(views), seen.source, seconds, tuple(frames), seen.frames_in_recording, given_poses=given)
+    frames = list(seen.frames[start : max(int(np.ceil(part[1] * n)), start + 1)])
+    views, seconds = _registered(frames, progress)
+    return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), seen.frames_in_recording)
 
 
 def observe_chain(
