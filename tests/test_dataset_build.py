@@ -186,3 +186,47 @@ def test_a_run_killed_before_its_settings_were_written_resumes(tmp_path):
     with pytest.raises(SpareTwinError, match="no dataset.json"):
         generate_dataset(users, 2, seed=5, workers=1, cfg=CFG, progress=False)
     assert (users / ".lock").read_text() == "my notes"
+
+
+def test_print_physics_renders_each_link_where_its_print_put_it(tmp_path):
+    """A --print-physics sequence renders each link tilted out of the chain's plane by the angle it drew
+    (1-4 degrees, scaled by the print's shrink): the turn about the joint's axis that brings the link's
+    points, in the nominal link frame the labels keep, back onto the same link rendered without the
+    option is the drawn tilt, to within the search's 0.25-degree step."""
+    import h5py
+    import numpy as np
+    from scipy.spatial import cKDTree
+
+    from spare_twin.observe.points import backproject, rigid
+    from spare_twin.sim.rig import axis_angle
+
+    def link_points(root: Path) -> tuple[list[np.ndarray], dict]:
+        with h5py.File(root / "sequences" / "seq-000005.h5") as f:  # index 5: six moving links
+            depth = f["depth"][:, 0].astype(np.float64) * float(f.attrs["depth_scale"])
+            labels, K, T_wc = f["segmentation"][:, 0], f["K"][()], f["T_world_camera"][()]
+            T_world_link = f["T_world_link"][0]
+            scene = json.loads(f.attrs["scene"])
+        links = []
+        for k in range(1, 7):  # label k + 1 is link k
+            pts = np.concatenate([rigid(T_wc[v], backproject(depth[v], K[v], labels[v] == k + 1)) for v in range(8)])
+            links.append(rigid(np.linalg.inv(T_world_link[k]), pts))
+        return links, scene
+
+    plain = GenConfig(frames=1)
+    assert "print_physics" not in plain.to_dict()  # datasets made before the option keep their settings
+    generate_dataset(tmp_path / "plain", 6, seed=4, workers=1, cfg=plain, progress=False)
+    printed_cfg = GenConfig(frames=1, print_physics=True)
+    generate_dataset(tmp_path / "printed", 6, seed=4, workers=1, cfg=printed_cfg, progress=False)
+    nominal, _ = link_points(tmp_path / "plain")
+    leaning, scene = link_points(tmp_path / "printed")
+    drawn = scene["print"]
+    assert all(1.0 <= abs(t) <= 4.0 for t in drawn["tilt_deg"]) and 0.995 <= drawn["scale"] <= 0.998
+    trial_deg = np.arange(-5.0, 5.01, 0.25)
+    for k, (ref, pts, tilt) in enumerate(zip(nominal, leaning, drawn["tilt_deg"]), 1):
+        assert len(ref) > 50 and len(pts) > 50, k
+        surface = cKDTree(ref)
+        # the tilt that brings the printed link back onto the plain one (points turned about the joint's x axis)
+        turned = [pts @ axis_angle(np.array([1.0, 0.0, 0.0]), np.radians(-a)).T for a in trial_deg]
+        misfit_m = [np.mean(surface.query(p / drawn["scale"])[0]) for p in turned]
+        found = trial_deg[int(np.argmin(misfit_m))]
+        assert abs(found - tilt) <= 0.5, (k, tilt, found)

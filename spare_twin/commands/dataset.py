@@ -72,6 +72,13 @@ def register(sub) -> None:
         action="store_true",
         help="randomise rig pose / intrinsics, lighting, link and table colours, clutter per sequence",
     )
+    p.add_argument(
+        "--print-physics",
+        action="store_true",
+        help="render each sequence's object as a print is: joint play (links tilted 1-4 degrees out of the "
+        "chain's plane, joint centres shifted by the pins' 0.3 mm clearance) and print error (0.2-0.5 %% shrink, "
+        "up to 0.5 degrees off level), drawn from the sequence's seed (docs/sensor_effects.md); labels stay nominal",
+    )
     p.add_argument("--no-segmentation", action="store_true", help="do not store link segmentation images")
     p.set_defaults(func=run)
 
@@ -97,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
         geometry=args.geometry,
         segmentation=not args.no_segmentation,
         randomization=SIM2REAL if args.sim2real else DomainRandomization(),
+        print_physics=args.print_physics,
     )
     with flags(
         instances="--instances",

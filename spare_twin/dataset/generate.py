@@ -27,7 +27,9 @@ from spare_twin.config import MAX_MOVING_LINKS, ChainSpec, sample_chain
 from spare_twin.object.folder import SIM_CIRCLE_SEGMENTS, ObjectFolder, build_sim_twin
 from spare_twin.object.parts import CIRCLE_SEGMENTS
 from spare_twin.recording import SIM_DEPTH_SCALE
+from spare_twin.sim.effects import ALL_EFFECTS
 from spare_twin.sim.motion import MotionConfig, object_motion
+from spare_twin.sim.print_physics import draw_perturbation, perturbed_object
 from spare_twin.sim.rig import Rig
 from spare_twin.sim.scene import DomainRandomization, sample_scene
 from spare_twin.sim.twin import Twin, projection_matrix, view_matrix
@@ -79,10 +81,16 @@ class GenConfig:
     depth_scale: float = SIM_DEPTH_SCALE
     """Metres per stored depth unit (uint16)."""
     randomization: DomainRandomization = field(default_factory=DomainRandomization)
+    print_physics: bool = False
+    """Each sequence's object as a print is, not as its CAD: joint play and print error drawn from the
+    sequence's own seed with the sim-to-real bench's ranges (`sim.print_physics`; the labels stay
+    nominal, as a recording's ground truth does)."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d["rig"] = self.rig.to_dict()
+        if not self.print_physics:  # datasets made before the option keep their settings, and resume
+            del d["print_physics"]
         return d
 
     @classmethod
@@ -119,6 +127,9 @@ class Sequence:
     scene: dict
     depth_scale: float
 
+
+#: What `GenConfig.print_physics` switches on.
+PRINT_EFFECTS = ("joint_play", "print_error")
 
 GEOMETRY_SEGMENTS = {"sim": SIM_CIRCLE_SEGMENTS, "print": CIRCLE_SEGMENTS}
 
@@ -160,8 +171,13 @@ def render_sequence(cfg: GenConfig, seed: int, index: int, twin: Twin, workdir: 
     spec = sequence_spec(seed, index)
     scene = sample_scene(cfg.rig, spec, cfg.randomization, np.random.default_rng(seeds["scene"]))
     obj = load_twin_object(cfg, spec, workdir)
+    printed = None
     try:
-        twin.load(obj)
+        if cfg.print_physics:
+            printed = draw_perturbation(spec.n_links, ALL_EFFECTS.only(PRINT_EFFECTS), seeds["spare"])
+            twin.load(perturbed_object(obj, printed, obj.root / "printed"))
+        else:
+            twin.load(obj)
     finally:
         shutil.rmtree(obj.root, ignore_errors=True)  # pybullet has read the URDF and meshes
     if scene.link_rgb is not None:
@@ -216,6 +232,6 @@ def render_sequence(cfg: GenConfig, seed: int, index: int, twin: Twin, workdir: 
         T_world_camera=scene.T_world_camera,
         joint_angles_rad=angles,
         T_world_link=link_poses,
-        scene=scene.describe(),
+        scene=scene.describe() if printed is None else {**scene.describe(), "print": printed.to_dict()},
         depth_scale=cfg.depth_scale,
     )
