@@ -179,6 +179,16 @@ def test_a_sweep_that_does_not_fuse_as_a_whole_is_measured_from_a_part(printed_o
     assert seen.source.startswith("sweep, registered, brought into register on the object, frames ") and seen.views < 12
 
 
+def _pulled_apart(views: list[PosedView]) -> list[PosedView]:
+    """Every other view slid 4 mm along the table (x and y): views out of register."""
+    out = []
+    for i, v in enumerate(views):
+        slide = np.eye(4)
+        slide[:2, 3] = 0.004 if i % 2 else 0.0
+        out.append(dataclasses.replace(v, T_world_camera=slide @ np.asarray(v.T_world_camera)))
+    return out
+
+
 def test_a_sweep_that_matching_on_the_object_pulls_apart_keeps_its_registration(sweep, monkeypatch):
     """Where the views as registered and as brought into register on the object both give a chain, the
     closer fit stands (bench seed 30119: 6 links 0.3 mm RMS as registered, 2 links at 3.9 mm after the
@@ -188,20 +198,12 @@ def test_a_sweep_that_matching_on_the_object_pulls_apart_keeps_its_registration(
     from spare_twin.measure.chain import measure_views
     from spare_twin.observe.views import REGISTERED_SWEEP, PosedViews, recording_views
 
-    def pulled_apart(views):
-        out = []
-        for i, v in enumerate(views):
-            slide = np.eye(4)
-            slide[:2, 3] = 0.004 if i % 2 else 0.0
-            out.append(dataclasses.replace(v, T_world_camera=slide @ np.asarray(v.T_world_camera)))
-        return out
-
     seen = recording_views(Recording.open(sweep))
     assert seen.source == REGISTERED_SWEEP
     _, as_registered = measure_views(dataclasses.replace(seen, source="sweep"), PRINT_SCALE)
-    _, apart = measure_views(PosedViews(tuple(pulled_apart(seen.views)), "sweep"), PRINT_SCALE)
+    _, apart = measure_views(PosedViews(tuple(_pulled_apart(seen.views)), "sweep"), PRINT_SCALE)
     assert as_registered.n_links == 2 and apart.n_links is not None and apart.rms_m > as_registered.rms_m
-    monkeypatch.setattr(chain, "register_on_object", pulled_apart)
+    monkeypatch.setattr(chain, "register_on_object", _pulled_apart)
     found, kept = measure_views(seen, PRINT_SCALE)
     assert found.source == REGISTERED_SWEEP and kept.n_links == 2 and kept.rms_m == as_registered.rms_m
 
@@ -271,3 +273,36 @@ def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(han
     truth_pu = np.asarray(rec.object_config["link_lengths_pu"])
     assert np.abs(measured.lengths_pu - truth_pu).max() < 0.08  # measured: 0.071 (0.009 from the true poses)
     assert set(seen.timings_s) == {"registration", "observation", "measurement"}
+
+
+def test_a_tracked_sweep_is_measured_as_tracked_and_as_registered_and_the_closer_fit_stands(handheld_rec, monkeypatch):
+    """A tracked sweep is measured as the tracker placed its views and as registered from its frames
+    alone (the tracker's poses set aside); the closer fit stands. Tracker poses that leave every other
+    view 4 mm off blur the chain: the registered frames are kept, and count it. Where instead the
+    registration is what pulls the views apart, the tracker's poses are kept."""
+    from spare_twin.measure import chain
+    from spare_twin.measure.chain import measure_views
+    from spare_twin.observe.views import REGISTERED_SWEEP, TRACKED_SWEEP, recording_views
+
+    rec = Recording.open(handheld_rec)
+    n_links = rec.object_config["n_links"]
+    seen = recording_views(rec)
+    assert seen.source == TRACKED_SWEEP and len(seen.frames) == len(seen.views)
+    _, as_tracked = measure_views(dataclasses.replace(seen, frames=None), PRINT_SCALE)  # the tracked reading alone
+    off = dataclasses.replace(seen, views=tuple(_pulled_apart(seen.views)))
+    _, blurred = measure_views(dataclasses.replace(off, frames=None), PRINT_SCALE)
+    assert as_tracked.n_links == n_links and (blurred.n_links is None or blurred.rms_m > 2 * as_tracked.rms_m)
+
+    found, kept = measure_views(off, PRINT_SCALE)
+    assert found.source.startswith(REGISTERED_SWEEP) and "its frames registered here fit" in found.source
+    assert kept.n_links == n_links and kept.rms_m < (blurred.rms_m or np.inf)
+
+    real_part = chain.sweep_part
+    monkeypatch.setattr(chain, "sweep_part", lambda s, part, progress=False: _registered_apart(real_part(s, part)))
+    monkeypatch.setattr(chain, "register_on_object", list)  # nothing pulls them back
+    found, kept = measure_views(seen, PRINT_SCALE)
+    assert found.source == TRACKED_SWEEP and kept.rms_m == as_tracked.rms_m
+
+
+def _registered_apart(seen):
+    return dataclasses.replace(seen, views=tuple(_pulled_apart(seen.views)))

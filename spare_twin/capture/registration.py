@@ -58,6 +58,7 @@ from spare_twin.capture.icp import Cloud, Edge, PairRegistrar, frame_cloud, over
 from spare_twin.capture.pose_graph import optimise
 from spare_twin.capture.se3 import axis_angle_deg, invert, normal_equations, turn_deg
 from spare_twin.errors import SpareTwinError
+from spare_twin.threads import side_by_side
 
 __all__ = [
     "Edge",
@@ -255,7 +256,7 @@ def register_frames(
     if n == 0:
         raise SpareTwinError("registration: no frames")
     t0 = time.perf_counter()
-    clouds = [frame_cloud(f, cfg) for f in frames]
+    clouds = side_by_side(lambda f: frame_cloud(f, cfg), frames)
     for i, c in enumerate(clouds):
         if len(c.points) < 100:
             raise SpareTwinError(f"registration: frame {i} has only {len(c.points)} points within {cfg.max_depth_m} m")

@@ -15,7 +15,7 @@ from spare_twin.observe.chain import ChainObservation, observe_views
 from spare_twin.observe.on_object import register_on_object
 from spare_twin.observe.points import PosedView
 from spare_twin.observe.profile import ProfileConfig
-from spare_twin.observe.views import REGISTERED_SWEEP, PosedViews, recording_views, sweep_part
+from spare_twin.observe.views import REGISTERED_SWEEP, TRACKED_SWEEP, PosedViews, recording_views, sweep_part
 from spare_twin.recording import Recording
 
 #: `ChainObservation.source` once a registered sweep's views were brought into register on the object.
@@ -27,6 +27,11 @@ MIN_FRAMES_TO_SPLIT = 8
 #: A part whose chain fits its points this well (RMS, metres) ends the search: the print's own
 #: roughness and the sensor's noise leave 0.2-0.5 mm; a part still out of register leaves 5 mm and more.
 CLEAN_PART_RMS_M = 0.002
+#: A tracked sweep whose chain fits within this (RMS, metres) is not registered again (`_tracked_or_registered`):
+#: registration seldom fits closer than 0.2-0.25 mm, and it must fit twice as close to replace it.
+CLEAN_TRACKED_RMS_M = 0.0005
+#: ... and registration's reading replaces a tracked one only within this: a chain fused in register.
+CLEAN_REGISTERED_RMS_M = 0.001
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,8 @@ def measure_views(
     geometry = Geometry(ProfileConfig.for_parts(parts), LayersConfig.for_parts(parts))
     seen_once = observe_views(views, seen.source, seen.registration_s, print_scale, profile_cfg=geometry.profile)
     as_registered = _measure(seen_once, print_scale, geometry, min_arc_deg)
+    if seen.source == TRACKED_SWEEP and seen.frames is not None and len(seen.frames) >= MIN_FRAMES_TO_SPLIT:
+        return _tracked_or_registered(seen, as_registered, print_scale, progress, min_arc_deg, parts)
     if seen.source != REGISTERED_SWEEP:
         return as_registered
     on_object, measured = _on_object(views, seen.registration_s, print_scale, geometry)
@@ -104,6 +111,37 @@ def measure_views(
             best = (dataclasses.replace(piece, source=f"{piece.source}, {share}: {why}"), m)
     found, measured = best or as_registered
     return dataclasses.replace(found, timings_s=seconds), measured
+
+
+def _tracked_or_registered(
+    seen: PosedViews,
+    as_tracked: tuple[ChainObservation, LayerMeasurement],
+    print_scale: float,
+    progress: bool,
+    min_arc_deg: float,
+    parts: PartDims,
+) -> tuple[ChainObservation, LayerMeasurement]:
+    """A tracked sweep as the tracker placed its views (levelled and matched on the object), or, where
+    that reading is loose, as registered here from its frames alone, the tracker's poses set aside.
+
+    A tracker's error is per frame and in all six directions; where it leaves the layers blurred, the
+    views fuse into a wrong count with a loose fit. Registration's reading replaces the tracker's only
+    where it fits as a print and a sensor allow (`CLEAN_REGISTERED_RMS_M`) and at most half as
+    loosely: a loose fit of another count is no better evidence (a 4-link capture read right at
+    4.2 mm RMS as tracked, 2 links at 2.3 mm as registered). A tracked reading within
+    `CLEAN_TRACKED_RMS_M` is kept without trying."""
+    m = as_tracked[1]
+    if m.n_links is not None and m.rms_m <= CLEAN_TRACKED_RMS_M:
+        return as_tracked
+    registered = measure_views(sweep_part(seen, (0.0, 1.0), progress), print_scale, progress, min_arc_deg, parts)
+    seconds = _add(as_tracked[0].timings_s, registered[0].timings_s)
+    r = registered[1]
+    closer = r.n_links is not None and r.rms_m <= CLEAN_REGISTERED_RMS_M
+    if closer and (m.n_links is None or r.rms_m <= 0.5 * m.rms_m):
+        why = f"its frames registered here fit {1000 * r.rms_m:.1f} mm (RMS)"
+        why += ", the tracker's poses none" if m.n_links is None else f", the tracker's poses {1000 * m.rms_m:.1f} mm"
+        return dataclasses.replace(registered[0], source=f"{registered[0].source}: {why}", timings_s=seconds), r
+    return dataclasses.replace(as_tracked[0], timings_s=seconds), m
 
 
 def _on_object(views: list[PosedView], registration_s: float, print_scale: float, geometry: Geometry):

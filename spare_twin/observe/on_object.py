@@ -49,6 +49,7 @@ from spare_twin.observe.points import (
     views_table_frame,
     where_objects_stand,
 )
+from spare_twin.threads import side_by_side
 
 
 @dataclass(frozen=True)
@@ -93,7 +94,7 @@ def register_on_object(
     if T_world_table is None or len(views) < 2:
         return views
     T_table_world = np.linalg.inv(T_world_table)
-    seen = [_object_points(v, T_table_world, points_cfg, cfg) for v in views]
+    seen = side_by_side(lambda v: _object_points(v, T_table_world, points_cfg, cfg), views)
     movable = np.array([len(p) >= cfg.min_points for p, _ in seen])
     if movable.sum() < 2:
         return views
@@ -109,7 +110,7 @@ def register_on_object(
         for i, p in enumerate(points):
             if not movable[i]:
                 continue
-            d, j = tree.query(p, k=8, distance_upper_bound=dist)
+            d, j = tree.query(p, k=8, distance_upper_bound=dist, workers=-1)
             jj = np.minimum(j, len(owner) - 1)
             facing = np.sum(normals[i][:, None, :] * all_normals[jj], axis=2) > cfg.min_normal_cos
             other = (d < dist) & (owner[jj] != i) & facing

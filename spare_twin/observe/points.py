@@ -33,6 +33,7 @@ import numpy as np
 from scipy import ndimage
 
 from spare_twin.observe.clean import between_surfaces, seen_through
+from spare_twin.threads import side_by_side
 
 
 @dataclass(frozen=True)
@@ -220,19 +221,24 @@ def merged_cloud(
     cameras and the mean of their normals (`depth_normals`; both None unless `surfaces`). `keep`: a
     function of (N, 3) world points giving the mask of those to keep; with it, every view is read at
     the fine stride (`_stride`), since only the region kept costs memory."""
-    pts, cols, dirs, nrms = [], [], [], []
-    for v in views:
+
+    def one_view(v: PosedView) -> tuple:
         depth, K, world, stride = read_view(v, cfg, fine=keep is not None)
         mask = np.ones(len(world), bool) if keep is None else keep(world)
         world = world[mask]
-        pts.append(world)
+        normals = to_camera = colors = None
         if surfaces:
-            normals = pixel_normals(depth, K, mask)
-            nrms.append(normals @ np.asarray(v.T_world_camera, np.float64)[:3, :3].T)
+            normals = pixel_normals(depth, K, mask) @ np.asarray(v.T_world_camera, np.float64)[:3, :3].T
             to_camera = np.asarray(v.T_world_camera, np.float64)[:3, 3] - world
-            dirs.append(to_camera / np.maximum(np.linalg.norm(to_camera, axis=1, keepdims=True), 1e-9))
+            to_camera /= np.maximum(np.linalg.norm(to_camera, axis=1, keepdims=True), 1e-9)
         if v.rgb is not None:
-            cols.append(v.rgb[::stride, ::stride][depth > 0][mask].astype(np.float32) / 255.0)
+            colors = v.rgb[::stride, ::stride][depth > 0][mask].astype(np.float32) / 255.0
+        return world, normals, to_camera, colors
+
+    read = side_by_side(one_view, views)
+    pts = [r[0] for r in read]
+    nrms, dirs = [r[1] for r in read if surfaces], [r[2] for r in read if surfaces]
+    cols = [r[3] for r in read if r[3] is not None]
     points = np.concatenate(pts) if pts else np.zeros((0, 3))
     directions = (np.concatenate(dirs) if dirs else np.zeros((0, 3))) if surfaces else None
     normals = (np.concatenate(nrms) if nrms else np.zeros((0, 3))) if surfaces else None

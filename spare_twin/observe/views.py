@@ -33,6 +33,7 @@ from spare_twin.observe.on_object import tracked_into_register
 from spare_twin.observe.points import PointsConfig, PosedView, without_flying_pixels
 from spare_twin.observe.profile import ProfileConfig
 from spare_twin.recording import Recording
+from spare_twin.threads import side_by_side
 
 #: `PosedViews.source` of a sweep whose poses were registered here.
 REGISTERED_SWEEP = "sweep, registered"
@@ -52,8 +53,8 @@ class PosedViews:
     registration_s: float = 0.0
     """Seconds spent estimating the poses."""
     frames: tuple[RGBDFrame, ...] | None = None
-    """A sweep registered here: its frames as read, so that a part of it can be registered again
-    on its own (`sweep_part`)."""
+    """A sweep (registered here or tracked): its frames as read, so that it or a part of it can be
+    registered (again) on its own (`sweep_part`)."""
     frames_in_recording: int | None = None
     """How many frames the source has (a sweep's views are a sample of them)."""
 
@@ -109,26 +110,27 @@ def recording_views(
         )
     picks = np.unique(np.linspace(0, rec.n_frames - 1, min(max_frames, rec.n_frames)).round().astype(int)).tolist()
     poses = rec.camera_poses(cam.name)
+    if poses is None and len(picks) < 2:
+        raise SpareTwinError(f"{rec.root}: one frame and no camera pose; nothing to register")
+    frames = side_by_side(_without_flying_pixels, load_frames(rec, cam.name, picks))
     if poses is None:
-        if len(picks) < 2:
-            raise SpareTwinError(f"{rec.root}: one frame and no camera pose; nothing to register")
-        frames = [_without_flying_pixels(fr) for fr in load_frames(rec, cam.name, picks)]
         views, seconds = _registered(frames, progress)
         return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
     views = [
-        without_flying_pixels(PosedView(rec.depth_m(cam.name, f), cam.K, poses[f], rec.color(cam.name, f)))
-        for f in picks
+        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, poses[f], fr.color)
+        for fr, f in zip(frames, picks)
     ]
     t0 = time.perf_counter()
     views = tracked_into_register(views)  # a tracker's poses are approximate
-    return PosedViews(tuple(views), TRACKED_SWEEP, time.perf_counter() - t0, frames_in_recording=rec.n_frames)
+    seconds = time.perf_counter() - t0
+    return PosedViews(tuple(views), TRACKED_SWEEP, seconds, tuple(frames), frames_in_recording=rec.n_frames)
 
 
 def sweep_part(seen: PosedViews, part: tuple[float, float], progress: bool = False) -> PosedViews:
-    """A share of a registered sweep's frames (start, stop), e.g. (0.5, 1.0) its second half,
-    registered on its own."""
+    """A share of a sweep's frames (start, stop), e.g. (0.5, 1.0) its second half or (0, 1) the whole,
+    registered on its own (a tracker's poses set aside)."""
     if seen.frames is None:
-        raise ValueError("sweep_part: only a sweep registered here has its frames")
+        raise ValueError("sweep_part: only a sweep read from a recording has its frames")
     n = len(seen.frames)
     start = int(part[0] * n)
     frames = list(seen.frames[start : max(int(np.ceil(part[1] * n)), start + 1)])
