@@ -18,8 +18,14 @@ R = TypeVar("R")
 
 
 def cores() -> int:
-    """The cores this process may run on."""
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    """The threads this process should use: OMP_NUM_THREADS where it is set (a worker process told to
+    use one, beside others on the same cores), else the cores it may run on."""
+    try:
+        told = int(os.environ.get("OMP_NUM_THREADS", "0"))
+    except ValueError:
+        told = 0
+    available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, min(told, available)) if told > 0 else available
 
 
 def side_by_side(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:

@@ -10,6 +10,7 @@ import time
 from dataclasses import dataclass
 
 from spare_twin.config import PartDims
+from spare_twin.errors import SpareTwinError
 from spare_twin.measure.layers import LayerMeasurement, LayersConfig, measure_profile
 from spare_twin.observe.chain import ChainObservation, observe_views
 from spare_twin.observe.on_object import register_on_object
@@ -133,7 +134,10 @@ def _tracked_or_registered(
     m = as_tracked[1]
     if m.n_links is not None and m.rms_m <= CLEAN_TRACKED_RMS_M:
         return as_tracked
-    registered = measure_views(sweep_part(seen, (0.0, 1.0), progress), print_scale, progress, min_arc_deg, parts)
+    try:
+        registered = measure_views(sweep_part(seen, (0.0, 1.0), progress), print_scale, progress, min_arc_deg, parts)
+    except SpareTwinError:  # frames that do not register (an empty table's): the tracker's reading stands
+        return as_tracked
     seconds = _add(as_tracked[0].timings_s, registered[0].timings_s)
     r = registered[1]
     closer = r.n_links is not None and r.rms_m <= CLEAN_REGISTERED_RMS_M

@@ -49,7 +49,7 @@ from spare_twin.observe.points import (
     views_table_frame,
     where_objects_stand,
 )
-from spare_twin.threads import side_by_side
+from spare_twin.threads import cores, side_by_side
 
 
 @dataclass(frozen=True)
@@ -110,7 +110,7 @@ def register_on_object(
         for i, p in enumerate(points):
             if not movable[i]:
                 continue
-            d, j = tree.query(p, k=8, distance_upper_bound=dist, workers=-1)
+            d, j = tree.query(p, k=8, distance_upper_bound=dist, workers=cores())
             jj = np.minimum(j, len(owner) - 1)
             facing = np.sum(normals[i][:, None, :] * all_normals[jj], axis=2) > cfg.min_normal_cos
             other = (d < dist) & (owner[jj] != i) & facing
