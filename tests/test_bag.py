@@ -15,8 +15,10 @@ STREAM_INFO_MSG = "uint32 fps\nstring encoding\nbool is_recommended\n"
 #: real time, misses none on a loaded machine.
 # open3d's RSBagReader replays in real time (librealsense playback; open3d leaves set_real_time(false)
 # out), so a reader thread that stalls can miss a frame: on a full CI machine one of 4 frames at 2 fps
-# was lost once (not reproduced in 29 runs under load since). 1 fps gives the reader twice the time.
-BAG_FRAMES, BAG_FPS = 4, 1
+# was lost once (not reproduced in 29 runs under load since). 1 fps gives the reader twice the time;
+# at 1 fps one frame was lost again once (release 0.6.5's fresh-clone CI run, both test workers busy
+# with threaded numpy work), so the frames are written BAG_SPACING_S apart (the stream still says 1 fps).
+BAG_FRAMES, BAG_FPS, BAG_SPACING_S = 4, 1, 2
 #: Bag times start here: ROS 1 refuses a message at time zero.
 T0_NS = 10**9
 
@@ -79,7 +81,7 @@ def write_realsense_bag(rec_dir, bag, frames: int = BAG_FRAMES, fps: int = BAG_F
             )
             put(f"{base}/{stream}/tf/0", identity)
         for f in range(frames):
-            t_ns = f * 10**9 // fps + 1000
+            t_ns = f * BAG_SPACING_S * 10**9 // fps + 1000
             stamp = Time(sec=(T0_NS + t_ns) // 10**9, nanosec=(T0_NS + t_ns) % 10**9)
             images = (rec.depth_raw(cam.name, f), rec.color(cam.name, f))
             for s, ((_, stream, encoding, bytes_per_pixel), img) in enumerate(zip(streams, images)):
