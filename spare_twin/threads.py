@@ -13,6 +13,8 @@ from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
+from spare_twin.validate import usable_cores
+
 T = TypeVar("T")
 R = TypeVar("R")
 
@@ -24,8 +26,8 @@ def cores() -> int:
         told = int(os.environ.get("OMP_NUM_THREADS", "0"))
     except ValueError:
         told = 0
-    available = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return max(1, min(told, available)) if told > 0 else available
+    available = usable_cores()
+    return min(told, available) if told > 0 else available
 
 
 def side_by_side(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:

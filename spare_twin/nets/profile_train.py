@@ -36,6 +36,7 @@ from spare_twin.measure.slots import measurement_slots
 from spare_twin.nets.presets import NetConfig, TrainConfig
 from spare_twin.nets.profile_samples import CaptureAugment, stored_sample
 from spare_twin.recording import npz_bytes
+from spare_twin.validate import usable_cores
 
 #: Hand-held-like captures per training time step.
 TRAIN_VARIANTS = 2
@@ -220,7 +221,7 @@ def evaluation_cache(data_dirs: list[Path], split: str) -> Path:
 
 
 def _evaluation_workers() -> int:
-    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return usable_cores()
 
 
 def profile_samples(
