@@ -79,9 +79,10 @@ def measure_views(
     object. Registration errors come in runs: a sweep's views slide apart along the table where the
     object shows little (a Kinect at a metre and more), and the half without that run fuses into one
     chain; so does the half of a sweep before (or after) the object was bumped. The try whose chain
-    fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends the search. Views
-    with their own poses (a rig, a tracked camera) are looked at once, as `observe.views` placed them
-    (a tracker's approximate poses are levelled and brought into register on the object there).
+    fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends the search. A tracked
+    sweep is measured as `observe.views` placed it (levelled and brought into register on the object)
+    and, where that reading is loose, registered from its frames alone too (`_tracked_or_registered`).
+    Other views with poses (a rig, views given in memory) are looked at once.
     Views that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
     `spare_twin.predict.abstain` gives no answer on them)."""
     views = list(seen.views)

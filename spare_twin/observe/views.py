@@ -69,14 +69,18 @@ def _without_flying_pixels(fr: RGBDFrame, cfg: PointsConfig = PointsConfig()) ->
     return RGBDFrame(fr.color, np.where(flying, np.uint16(0), fr.depth_u16), fr.depth_scale, fr.K)
 
 
+def _posed(frames: list[RGBDFrame], poses) -> list[PosedView]:
+    """Each frame as a view at its camera-to-world pose."""
+    return [
+        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, T, fr.color)
+        for fr, T in zip(frames, poses)
+    ]
+
+
 def _registered(frames: list[RGBDFrame], progress: bool) -> tuple[list[PosedView], float]:
     t0 = time.perf_counter()
     poses = register_frames(frames, RegistrationConfig(), None, progress).poses
-    views = [
-        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, P, fr.color)
-        for fr, P in zip(frames, poses)
-    ]
-    return views, time.perf_counter() - t0
+    return _posed(frames, poses), time.perf_counter() - t0
 
 
 def recording_views(
@@ -116,12 +120,8 @@ def recording_views(
     if poses is None:
         views, seconds = _registered(frames, progress)
         return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
-    views = [
-        PosedView(fr.depth_u16.astype(np.float32) * np.float32(fr.depth_scale), fr.K, poses[f], fr.color)
-        for fr, f in zip(frames, picks)
-    ]
     t0 = time.perf_counter()
-    views = tracked_into_register(views)  # a tracker's poses are approximate
+    views = tracked_into_register(_posed(frames, [poses[f] for f in picks]))  # a tracker's poses are approximate
     seconds = time.perf_counter() - t0
     return PosedViews(tuple(views), TRACKED_SWEEP, seconds, tuple(frames), frames_in_recording=rec.n_frames)
 
