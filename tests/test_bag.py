@@ -1,7 +1,7 @@
 """A RealSense .bag end to end (issue 29): a short bag in the RealSense layout, written from a recording
-with `rosbags` (ROS 1 bag, the topics librealsense's recorder writes), read through open3d's
-RSBagReader by `capture import --layout bag` and by `live --bag`: the same frames, and those of the
-recording it was made from."""
+with `rosbags` (ROS 1 bag, the topics librealsense's recorder writes), read through librealsense's
+playback (`capture.bag`) by `capture import --layout bag` and by `live --bag`: the same frames, and
+those of the recording it was made from, however long the reader stalls."""
 
 from __future__ import annotations
 
@@ -11,14 +11,9 @@ from conftest import run_cli
 
 #: librealsense's stream description message (realsense_msgs/StreamInfo), which rosbags does not ship.
 STREAM_INFO_MSG = "uint32 fps\nstring encoding\nbool is_recommended\n"
-#: Frames in the bag, and its frame rate: slow enough that open3d's reader, which plays the bag back in
-#: real time, misses none on a loaded machine.
-# open3d's RSBagReader replays in real time (librealsense playback; open3d leaves set_real_time(false)
-# out), so a reader thread that stalls can miss a frame: on a full CI machine one of 4 frames at 2 fps
-# was lost once (not reproduced in 29 runs under load since). 1 fps gives the reader twice the time;
-# at 1 fps one frame was lost again once (release 0.6.5's fresh-clone CI run, both test workers busy
-# with threaded numpy work), so the frames are written BAG_SPACING_S apart (the stream still says 1 fps).
-BAG_FRAMES, BAG_FPS, BAG_SPACING_S = 4, 1, 2
+#: Frames in the bag and its frame rate: a real sensor's, so a reader that stalls for a few frame
+#: periods would lose frames if the bag were played back in real time.
+BAG_FRAMES, BAG_FPS = 4, 30
 #: Bag times start here: ROS 1 refuses a message at time zero.
 T0_NS = 10**9
 
@@ -81,7 +76,7 @@ def write_realsense_bag(rec_dir, bag, frames: int = BAG_FRAMES, fps: int = BAG_F
             )
             put(f"{base}/{stream}/tf/0", identity)
         for f in range(frames):
-            t_ns = f * BAG_SPACING_S * 10**9 // fps + 1000
+            t_ns = f * 10**9 // fps + 1000
             stamp = Time(sec=(T0_NS + t_ns) // 10**9, nanosec=(T0_NS + t_ns) % 10**9)
             images = (rec.depth_raw(cam.name, f), rec.color(cam.name, f))
             for s, ((_, stream, encoding, bytes_per_pixel), img) in enumerate(zip(streams, images)):
@@ -139,21 +134,26 @@ def test_a_file_that_is_not_a_bag_is_one_line(tmp_path, capsys):
     assert not (tmp_path / "r").exists()
 
 
-def test_a_frame_the_replay_hands_out_again_is_a_repeat():
-    """open3d's real-time .bag replay can hand a frame out twice on a busy machine (a 2-frame bag read
-    as 4): both bag readers drop a frame that repeats the last one bit for bit."""
-    import open3d as o3d
+def test_a_reader_that_stalls_loses_no_frame(handheld_rec, tmp_path):
+    """librealsense plays a bag back in real time unless told not to, through a queue one frameset
+    deep: a reader that stalls for 20 frame periods after the first frame would then get the first
+    and the last. open3d's reader (release 0.6.5) lost a frame this way on a loaded CI machine."""
+    import time
 
-    from spare_twin.capture.record import repeats
+    from spare_twin.capture.bag import BagReader
 
-    def frame(depth_mm):
-        color = np.full((4, 5, 3), 200, np.uint8)
-        depth = np.full((4, 5), depth_mm, np.uint16)
-        return o3d.t.geometry.RGBDImage(o3d.t.geometry.Image(color), o3d.t.geometry.Image(depth))
-
-    again, previous = repeats(frame(500), None)
-    assert not again
-    again, previous = repeats(frame(500), previous)
-    assert again
-    again, _ = repeats(frame(501), previous)  # one millimetre anywhere is a new frame
-    assert not again
+    path = tmp_path / "fast.bag"
+    n = 8
+    write_realsense_bag(handheld_rec, path, frames=n, fps=BAG_FPS)
+    with BagReader(path) as reader:
+        assert reader.stream.expected_frames == n and reader.stream.depth_scale > 0
+        got = []
+        for color, depth, t_s in reader.frames():
+            got.append((color, depth, t_s))
+            if len(got) == 1:
+                time.sleep(20 / BAG_FPS)
+    source = _frames(handheld_rec)[:n]
+    assert len(got) == n
+    for (c, d, _), (cs, ds) in zip(got, source):
+        assert np.array_equal(c, cs) and np.array_equal(d, ds)
+    assert np.allclose([t for *_, t in got], np.arange(n) / BAG_FPS, atol=1e-6)  # the bag's own clock

@@ -5,9 +5,11 @@ Modules (each imports open3d / opencv / rerun only where used):
 - `checks`       range checks of settings (one-line errors naming the field).
 - `frames`       RGB-D frame helpers: depth sanity checks, intrinsics, resizing, back-projection.
 - `layouts`      listing the frames of a 7-Scenes / tsdf-fusion, TUM RGB-D or Open3D-recorder folder.
-- `importers`    those folders and RealSense `.bag` files into a recording (`spare_twin.recording`),
-                 every frame checked before anything is written, keeping the sensor's depth scale.
-- `record`       live capture from an Intel RealSense through open3d (and the .bag replay's stream).
+- `bag`          RealSense `.bag` files, every frameset in order (librealsense's playback out of real time).
+- `importers`    those folders and `.bag` files into a recording (`spare_twin.recording`), every frame
+                 checked before anything is written, keeping the sensor's depth scale.
+- `record`       live capture from an Intel RealSense through open3d, and the stream writer it shares
+                 with the .bag import.
 - `board`        ChArUco board: generation at true print size, detection, camera pose, depth refinement.
 - `calibrate`    `calibrate_recording`: each camera's fixed pose from the board, written atomically.
 - `registration` camera poses from RGB-D frames: FPFH + RANSAC, ICP, pose-graph optimisation.

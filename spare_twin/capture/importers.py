@@ -11,7 +11,7 @@ Layouts (`import_folder(src, layout, out)`; `spare-twin capture import SRC --lay
   pair naming ``N.png`` + ``N_depth.png``. Depth scale 1/5000. Intrinsics from ``ImportOptions.K``.
 - ``open3d``  the folder Open3D's RealSense recorder / ``RSBagReader.save_frames`` writes:
   ``color/*.jpg|png``, ``depth/*.png``, ``camera_intrinsic.json`` or ``intrinsic.json``.
-- ``bag``  a RealSense ``.bag`` file, replayed through ``open3d.t.io.RSBagReader``.
+- ``bag``  a RealSense ``.bag`` file, every frameset in order (``spare_twin.capture.bag``).
 
 Depth is copied as the sensor's own integers with the sensor's scale (never re-quantised); colour
 PNGs are copied byte for byte when already 8-bit RGB. Every frame is checked: matching colour and
@@ -26,10 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.bag import BagReader
 from spare_twin.capture.checks import positive, whole
 from spare_twin.capture.frames import check_depth
 from spare_twin.capture.layouts import LAYOUTS, LISTERS, FrameFiles, Source
-from spare_twin.capture.record import repeats, stream_to_recording
+from spare_twin.capture.record import stream_to_recording
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import encode_png, read_png
 from spare_twin.output import check_output
@@ -214,45 +215,17 @@ def write_source(
 
 
 def import_bag(path: str | Path, out: str | Path, opts: ImportOptions = ImportOptions(), force: bool = False):
-    """Replay a RealSense .bag through open3d's RSBagReader into a recording (poses unknown)."""
+    """Read a RealSense .bag, every frameset in order, into a recording (poses unknown)."""
     path = Path(path)
     if not path.is_file():
         raise SpareTwinError(f"{path}: no such file")
     check_output(out, IMPORT, (path,), force)
-    import open3d as o3d
-
-    reader = o3d.t.io.RSBagReader()
-    if not reader.open(str(path)):
-        raise SpareTwinError(f"{path}: not a readable RealSense .bag file")
-    try:
-        md = reader.metadata
-
-        def frames():
-            previous = None
-            while not reader.is_eof():
-                im = reader.next_frame()
-                if im.is_empty():  # the end came while the reader waited for the next frame
-                    return
-                again, previous = repeats(im, previous)
-                if not again:
-                    yield im
-
+    with BagReader(path) as reader:
+        s = reader.stream
+        camera = Camera("cam0", s.width, s.height, s.K, None, "unknown")
+        source = {"kind": "sensor", "sensor_model": s.device_name or "Intel RealSense", "layout": "bag",
+                  "path": str(path.resolve())}  # fmt: skip
         return stream_to_recording(
-            frames(),
-            md,
-            out,
-            {
-                "kind": "sensor",
-                "sensor_model": md.device_name or "Intel RealSense",
-                "layout": "bag",
-                "path": str(path.resolve()),
-            },
-            opts,
-            expected_frames=int(md.stream_length_usec * 1e-6 * md.fps) or None,
-            timestamp=lambda: reader.get_timestamp() * 1e-6,
-            kind=IMPORT,
-            inputs=(path,),
-            force=force,
-        )
-    finally:
-        reader.close()
+            reader.frames(), camera, s.fps, s.depth_scale, out, source, opts, s.expected_frames, kind=IMPORT,
+            inputs=(path,), force=force,
+        )  # fmt: skip

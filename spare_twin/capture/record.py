@@ -73,56 +73,44 @@ def o3d_frame_arrays(im, size: tuple[int, int], where: str) -> tuple[np.ndarray,
     return color[..., :3], depth.astype(np.uint16)
 
 
-def repeats(im, previous: tuple[np.ndarray, np.ndarray] | None) -> tuple[bool, tuple[np.ndarray, np.ndarray]]:
-    """(whether open3d RGBD frame `im` repeats `previous` bit for bit, `im`'s (colour, depth) arrays to
-    compare the next frame with). open3d's RSBagReader replays a .bag in real time, and on a busy
-    machine it hands a frame out again (a 2-frame bag read as 4); a sensor's noise never repeats a
-    frame to the bit, so a repeat is the replay's, not the scene's."""
-    current = (_tensor_np(im.color).copy(), _tensor_np(im.depth).copy())
-    same = previous is not None and all(np.array_equal(a, b) for a, b in zip(current, previous))
-    return same, current
+def o3d_camera(md) -> Camera:
+    """The camera open3d's RGBD video metadata `md` describes (its colour intrinsics; depth is aligned to them)."""
+    Km = np.asarray(md.intrinsics.intrinsic_matrix, dtype=np.float64)
+    K = K_from(Km[0, 0], Km[1, 1], Km[0, 2], Km[1, 2])
+    return Camera("cam0", int(md.width), int(md.height), K, None, "unknown")
 
 
 def stream_to_recording(
     frames,
-    md,
+    camera: Camera,
+    fps: float,
+    depth_scale: float,
     out: str | Path,
     source: dict,
     opts,
     expected_frames: int | None,
-    timestamp,
     kind: str = RECORD,
     inputs: tuple = (),
     force: bool = False,
 ) -> Recording:
-    """Write open3d t.geometry.RGBDImage frames from `frames` (an iterator) into a recording.
+    """Write a stream of frames into a one-camera recording as they come.
 
-    `md` is open3d's RGBDVideoMetadata (intrinsics, depth scale, fps). Stops at the end of the
-    iterator, after `opts.max_frames`, or on Ctrl-C (then keeps what was received). `opts` has
-    `max_frames`, `stride` and `progress` (an `ImportOptions`, or any object with them); `timestamp()`
-    gives the current frame's time in seconds. `kind`, `inputs` and `force` are the output rule's
-    (`RecordingWriter`).
+    `frames` yields (uint8 RGB colour, uint16 depth, seconds) of `camera`'s size and intrinsics, with
+    `depth_scale` metres per depth unit, at about `fps`. Stops at the end of the iterator, after
+    `opts.max_frames`, or on Ctrl-C (then keeps what was received). `opts` has `max_frames`, `stride`
+    and `progress` (an `ImportOptions`, or any object with them). `kind`, `inputs` and `force` are
+    the output rule's (`RecordingWriter`).
     """
     from tqdm import tqdm
 
-    Km = np.asarray(md.intrinsics.intrinsic_matrix, dtype=np.float64)
-    width, height = int(md.width), int(md.height)
-    depth_scale = 1.0 / float(md.depth_scale)  # open3d: depth units per metre
-    camera = Camera("cam0", width, height, K_from(Km[0, 0], Km[1, 1], Km[0, 2], Km[1, 2]), None, "unknown")
+    where = source.get("path", "sensor")
     limit = getattr(opts, "max_frames", None)
     stride = max(1, getattr(opts, "stride", 1))
     stopped = False
     with RecordingWriter(
-        out,
-        [camera],
-        None,
-        float(md.fps) / stride,
-        source,
-        depth_scale=depth_scale,
-        kind=kind,
-        inputs=inputs,
+        out, [camera], None, float(fps) / stride, source, depth_scale=depth_scale, kind=kind, inputs=inputs,
         force=force,
-    ) as writer:
+    ) as writer:  # fmt: skip
         bar = tqdm(
             total=expected_frames,
             desc=f"{source.get('layout', 'record')}",
@@ -131,13 +119,12 @@ def stream_to_recording(
             disable=not getattr(opts, "progress", True),
         )
         try:
-            for k, im in enumerate(frames):
+            for k, (color, depth, t_s) in enumerate(frames):
                 if k % stride:
                     continue
-                color, depth = o3d_frame_arrays(im, (height, width), f"{source.get('path', 'sensor')}: frame {k}")
                 if writer.frames_written == 0:
-                    check_depth(depth, depth_scale, f"{source.get('path', 'sensor')} (first frame)")
-                writer.append(color, depth, timestamp())
+                    check_depth(depth, depth_scale, f"{where} (first frame)")
+                writer.append(color, depth, t_s)
                 bar.update(1)
                 if limit is not None and writer.frames_written >= limit:
                     break
@@ -191,11 +178,12 @@ def record_realsense(
     sensor = start_realsense(cfg)
     t_end = None if cfg.duration_s is None else time.monotonic() + cfg.duration_s
 
-    def frames():
-        for _ in itertools.count():
+    def frames(size: tuple[int, int]):
+        for k in itertools.count():
             if t_end is not None and time.monotonic() >= t_end:
                 return
-            yield sensor.capture_frame(True, True)
+            color, depth = o3d_frame_arrays(sensor.capture_frame(True, True), size, f"RealSense: frame {k}")
+            yield color, depth, sensor.get_timestamp() * 1e-6
 
     class _Opts:
         max_frames = cfg.max_frames
@@ -204,22 +192,12 @@ def record_realsense(
     _Opts.progress = progress
     try:
         md = sensor.get_metadata()
+        source = {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense", "serial": md.serial_number,
+                  "layout": "live"}  # fmt: skip
+        depth_scale = 1.0 / float(md.depth_scale)  # open3d: depth units per metre
         return stream_to_recording(
-            frames(),
-            md,
-            out,
-            {
-                "kind": "sensor",
-                "sensor_model": md.device_name or "Intel RealSense",
-                "serial": md.serial_number,
-                "layout": "live",
-            },
-            _Opts,
-            cfg.max_frames,
-            lambda: sensor.get_timestamp() * 1e-6,
-            kind=RECORD,
-            inputs=inputs,
-            force=force,
-        )
+            frames((int(md.height), int(md.width))), o3d_camera(md), float(md.fps), depth_scale, out, source, _Opts,
+            cfg.max_frames, kind=RECORD, inputs=inputs, force=force,
+        )  # fmt: skip
     finally:
         sensor.stop_capture()

@@ -1,5 +1,5 @@
 """Where `live`'s frames come from: a recording folder replayed at its own frame rate, a RealSense
-`.bag` read through open3d's RSBagReader (the reader `capture import --layout bag` uses), or a live
+`.bag` read frame by frame (`capture.bag`, the reader `capture import --layout bag` uses), or a live
 RealSense through `capture record`'s own device set-up.
 
 Every source is opened (and checked) before anything is written, then iterated: `frames()` yields
@@ -20,8 +20,9 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin.capture.frames import K_from, check_depth
-from spare_twin.capture.record import RecordConfig, o3d_frame_arrays, repeats, start_realsense
+from spare_twin.capture.bag import BagReader
+from spare_twin.capture.frames import check_depth
+from spare_twin.capture.record import RecordConfig, o3d_camera, o3d_frame_arrays, start_realsense
 from spare_twin.errors import SpareTwinError
 from spare_twin.recording import Recording, RecordingWriter
 
@@ -167,79 +168,51 @@ class ReplaySource(Source):
             yield StoredFrame(f, t_s, color, depth, self.rec, self.cam)
 
 
-class _O3dStream(Source):
-    """Frames from an open3d RGBD video reader (RSBagReader, RealSenseSensor) and its metadata."""
-
-    def _set_info(self, md, source: dict, path: Path | None) -> None:
-        Km = np.asarray(md.intrinsics.intrinsic_matrix, dtype=np.float64)
-        self.info = StreamInfo(
-            K_from(Km[0, 0], Km[1, 1], Km[0, 2], Km[1, 2]),
-            int(md.width),
-            int(md.height),
-            1.0 / float(md.depth_scale),  # open3d: depth units per metre
-            float(md.fps) or 30.0,
-            source,
-            path,
-        )
-
-    def _arrays(self, im, index: int, where: str) -> tuple[np.ndarray, np.ndarray]:
-        color, depth = o3d_frame_arrays(im, (self.info.height, self.info.width), f"{where}: frame {index}")
-        check_depth(depth, self.info.depth_scale, f"{where}: frame {index}")
-        return color, depth
-
-
-class BagSource(_O3dStream):
-    """A RealSense .bag through open3d's RSBagReader, paced at its timestamps / `speed`."""
+class BagSource(Source):
+    """A RealSense .bag (`capture.bag.BagReader`, the reader `capture import` uses), paced at its
+    timestamps / `speed`."""
 
     def __init__(self, path: str | Path, speed: float = 1.0):
         self.path, self.speed = Path(path), float(speed)
-        if not self.path.is_file():
-            raise SpareTwinError(f"{self.path}: no such file")
-        import open3d as o3d
-
-        self.reader = o3d.t.io.RSBagReader()
-        if not self.reader.open(str(self.path)):
-            raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file")
-        md = self.reader.metadata
-        source = {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense", "layout": "bag"}
-        self._set_info(md, {**source, "path": str(self.path.resolve())}, self.path)
+        self.reader = BagReader(self.path)
+        s = self.reader.stream
+        source = {"kind": "sensor", "sensor_model": s.device_name or "Intel RealSense", "layout": "bag",
+                  "path": str(self.path.resolve())}  # fmt: skip
+        self.info = StreamInfo(s.K, s.width, s.height, s.depth_scale, s.fps or 30.0, source, self.path)
 
     def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
-        start, t0, k, previous = time.monotonic(), None, 0, None
-        while not stop.is_set() and not self.reader.is_eof():
-            im = self.reader.next_frame()
-            if im.is_empty():  # the end came while the reader waited for the next frame
+        start = time.monotonic()
+        for k, (color, depth, t_s) in enumerate(self.reader.frames()):
+            if stop.is_set():
                 return
-            again, previous = repeats(im, previous)
-            if again:
-                continue
-            stamp_s = self.reader.get_timestamp() * 1e-6
-            t0 = stamp_s if t0 is None else t0
-            _paced(stamp_s - t0, start, self.speed, stop)
-            color, depth = self._arrays(im, k, str(self.path))
-            yield StreamFrame(k, color, depth, stamp_s - t0)
-            k += 1
+            _paced(t_s, start, self.speed, stop)
+            check_depth(depth, self.info.depth_scale, f"{self.path}: frame {k}")
+            yield StreamFrame(k, color, depth, t_s)
 
     def close(self) -> None:
         self.reader.close()
 
 
-class RealSenseSource(_O3dStream):
+class RealSenseSource(Source):
     """A live RealSense, set up as `capture record` sets it up (`capture.record.start_realsense`)."""
 
     def __init__(self, cfg: RecordConfig = RecordConfig()):
         self.sensor = start_realsense(cfg)
         md = self.sensor.get_metadata()
-        source = {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense", "layout": "live"}
-        self._set_info(md, {**source, "serial": md.serial_number}, None)
+        cam = o3d_camera(md)
+        source = {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense", "layout": "live",
+                  "serial": md.serial_number}  # fmt: skip
+        depth_scale = 1.0 / float(md.depth_scale)  # open3d: depth units per metre
+        self.info = StreamInfo(cam.K, cam.width, cam.height, depth_scale, float(md.fps) or 30.0, source, None)
 
     def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
-        t0, k = None, 0
+        t0, k, size = None, 0, (self.info.height, self.info.width)
         while not stop.is_set():
             im = self.sensor.capture_frame(True, True)
             stamp_s = self.sensor.get_timestamp() * 1e-6
             t0 = stamp_s if t0 is None else t0
-            color, depth = self._arrays(im, k, "RealSense")
+            color, depth = o3d_frame_arrays(im, size, f"RealSense: frame {k}")
+            check_depth(depth, self.info.depth_scale, f"RealSense: frame {k}")
             yield StreamFrame(k, color, depth, stamp_s - t0)
             k += 1
 
