@@ -18,11 +18,12 @@ BAG_FRAMES, BAG_FPS = 4, 30
 T0_NS = 10**9
 
 
-def write_realsense_bag(rec_dir, bag, frames: int = BAG_FRAMES, fps: int = BAG_FPS) -> None:
+def write_realsense_bag(rec_dir, bag, frames: int = BAG_FRAMES, fps: int = BAG_FPS, colour: bool = True) -> None:
     """The first `frames` frames of a recording's first camera as a RealSense .bag (file version 2):
     device and sensor info, a depth (Z16) and a colour (RGB8) stream with the same intrinsics and an
     identity extrinsic (so open3d's alignment of depth to colour keeps every pixel), depth units from
-    the recording's depth scale, then each frame's images and metadata."""
+    the recording's depth scale, then each frame's images and metadata. `colour` False: the depth
+    stream alone."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
@@ -42,7 +43,7 @@ def write_realsense_bag(rec_dir, bag, frames: int = BAG_FRAMES, fps: int = BAG_F
     roi = T["sensor_msgs/msg/RegionOfInterest"](x_offset=0, y_offset=0, height=0, width=0, do_rectify=False)
     K = np.asarray(cam.K, np.float64)
     P = np.concatenate([K, np.zeros((3, 1))], axis=1).reshape(-1)
-    streams = (("Stereo Module", "Depth_0", "mono16", 2), ("RGB Camera", "Color_0", "rgb8", 3))
+    streams = (("Stereo Module", "Depth_0", "mono16", 2), ("RGB Camera", "Color_0", "rgb8", 3))[: 2 if colour else 1]
     with Writer(bag) as w:
         conns = {}
 
@@ -157,3 +158,18 @@ def test_a_reader_that_stalls_loses_no_frame(handheld_rec, tmp_path):
     for (c, d, _), (cs, ds) in zip(got, source):
         assert np.array_equal(c, cs) and np.array_equal(d, ds)
     assert np.allclose([t for *_, t in got], np.arange(n) / BAG_FPS, atol=1e-6)  # the bag's own clock
+
+
+def test_a_bag_without_colour_is_one_line_and_writes_nothing(handheld_rec, tmp_path, capsys):
+    """A bag of depth alone (a recorder set to depth only) cannot make a recording: one line naming the
+    file and the missing stream, for `capture import` and `live` alike, and no output folder."""
+    path = tmp_path / "depth_only.bag"
+    write_realsense_bag(handheld_rec, path, frames=2, colour=False)
+    for argv in (
+        ["capture", "import", str(path), "--layout", "bag", "--out", str(tmp_path / "imported")],
+        ["live", "--bag", str(path), "--no-viewer", "--out", str(tmp_path / "live")],
+    ):
+        code, _, err = run_cli(argv, capsys)
+        assert code == 1 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+        assert "depth_only.bag" in err and "no colour stream" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["depth_only.bag"]
