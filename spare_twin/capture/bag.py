@@ -130,6 +130,12 @@ class BagReader:
             duration_s=self._playback.get_duration() / timedelta(seconds=1),
         )
 
+    @property
+    def source(self) -> dict:
+        """The `source` entry of a recording made from this bag."""
+        name = self.stream.device_name or "Intel RealSense"
+        return {"kind": "sensor", "sensor_model": name, "layout": "bag", "path": str(self.path.resolve())}
+
     def frames(self) -> Iterator[tuple[np.ndarray, np.ndarray, float]]:
         """(uint8 RGB colour, uint16 depth aligned to it, seconds since the first frameset) for each
         frameset, until the bag ends."""

@@ -223,9 +223,7 @@ def import_bag(path: str | Path, out: str | Path, opts: ImportOptions = ImportOp
     with BagReader(path) as reader:
         s = reader.stream
         camera = Camera("cam0", s.width, s.height, s.K, None, "unknown")
-        source = {"kind": "sensor", "sensor_model": s.device_name or "Intel RealSense", "layout": "bag",
-                  "path": str(path.resolve())}  # fmt: skip
         return stream_to_recording(
-            reader.frames(), camera, s.fps, s.depth_scale, out, source, opts, s.expected_frames, kind=IMPORT,
-            inputs=(path,), force=force,
+            reader.frames(), camera, s.fps, s.depth_scale, out, reader.source, opts, s.expected_frames,
+            kind=IMPORT, inputs=(path,), force=force,
         )  # fmt: skip

@@ -176,9 +176,7 @@ class BagSource(Source):
         self.path, self.speed = Path(path), float(speed)
         self.reader = BagReader(self.path)
         s = self.reader.stream
-        source = {"kind": "sensor", "sensor_model": s.device_name or "Intel RealSense", "layout": "bag",
-                  "path": str(self.path.resolve())}  # fmt: skip
-        self.info = StreamInfo(s.K, s.width, s.height, s.depth_scale, s.fps or 30.0, source, self.path)
+        self.info = StreamInfo(s.K, s.width, s.height, s.depth_scale, s.fps or 30.0, self.reader.source, self.path)
 
     def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
         start = time.monotonic()
