@@ -311,3 +311,30 @@ def test_grouped_medians_are_numpys_to_the_bit():
     assert np.array_equal(grouped_medians(values, groups), expected)
     assert len({len(g) % 2 for g in groups}) == 2
     assert grouped_medians(values, []).shape == (0,)
+
+
+@pytest.mark.parametrize(
+    "comb, followed, chosen",
+    [
+        ((5, 0.00023), (4, 0.00019), 4),  # bench seed 30219: one link read as two by the comb, and looser
+        ((5, 0.00023), (4, 0.00023), 4),  # a tie: the links too many fit no closer
+        ((4, 0.00030), (5, 0.00025), 4),  # more links a little closer: a near tie keeps the comb's
+        ((4, 0.00080), (5, 0.00030), 5),  # ... much closer (FOLLOWED_RMS_SHARE): the followed comb's
+        ((5, 0.00090), (4, 0.00120), 5),  # fewer links, looser: the comb's as before
+    ],
+)
+def test_the_reading_with_fewer_links_stands_where_it_fits_as_closely(monkeypatch, comb, followed, chosen):
+    """Two readings of the layers that count otherwise and misread nothing (`split_layers`,
+    `past_last_layer`): a count with a link too many fits its points a little closer, never looser, so
+    the reading with fewer links stands where it fits at least as closely; otherwise the followed
+    comb's only where it fits much closer."""
+    from spare_twin.measure import layers as L
+
+    points = np.column_stack([np.linspace(0, 0.2, 400), np.zeros(400), np.full(400, 0.03)])
+    readings = [(np.zeros(400, np.int64), np.zeros(400)), (np.ones(400, np.int64), np.zeros(400))]
+    measured = [L.LayerMeasurement(n, np.ones(n + 1), np.zeros(n), (200,) * (n + 1), r) for n, r in (comb, followed)]
+    monkeypatch.setattr(L, "layer_readings", lambda *args: readings)
+    monkeypatch.setattr(L, "_measure_reading", lambda p, labels, *args: measured[int(labels[0])])
+    monkeypatch.setattr(L, "split_layers", lambda *args: 0)
+    monkeypatch.setattr(L, "past_last_layer", lambda labels: False)
+    assert L.measure_layers(points, 0.08).n_links == chosen

@@ -311,12 +311,16 @@ def measure_layers(
     misread = [(past_last_layer(labels), split_layers(p[:, [0, 2]], labels, cfg)) for labels, _ in readings]
     if misread[0] != misread[1]:
         return as_designed if misread[0] < misread[1] else followed
+    fewer, more = sorted((as_designed, followed), key=lambda m: m.n_links)
+    if fewer.rms_m <= more.rms_m:
+        return fewer  # a link too many fits a little closer, never looser: the fewer links hold the points
     return followed if followed.rms_m <= FOLLOWED_RMS_SHARE * as_designed.rms_m else as_designed
 
 
-#: Where the two readings give other counts and neither splits a link (`split_layers`), the layers
-#: read along the chain (`measure.plates`) replace the comb's where their chain holds its points at
-#: least this much closer (RMS): each reading fits its own chain well, a count with a link too many a
+#: Where the two readings give other counts and neither splits a link (`split_layers`), the reading
+#: with fewer links stands where its chain holds its points at least as closely (RMS); otherwise the
+#: layers read along the chain (`measure.plates`) replace the comb's where their chain holds its points
+#: at least this much closer: each reading fits its own chain well, a count with a link too many a
 #: little better, so a near tie keeps the comb's.
 FOLLOWED_RMS_SHARE = 0.65
 #: A SPARE chain has links in layers 0..6 only; where more than this share of the points lie past the
