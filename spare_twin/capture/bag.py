@@ -58,6 +58,11 @@ _TO_RGB = {"rgb8": lambda a: a, "bgr8": lambda a: a[..., ::-1], "rgba8": lambda 
            "bgra8": lambda a: a[..., 2::-1]}  # fmt: skip
 
 
+def _first_line(err: Exception) -> str:
+    text = str(err).strip()
+    return text.splitlines()[0] if text else "librealsense refused it"
+
+
 def _same_camera(depth, color) -> bool:
     """Whether the depth and colour stream profiles see through one camera: the same intrinsics and
     distortion, and an identity transform between them."""
@@ -84,20 +89,19 @@ class BagReader:
         config = rs.config()
         try:
             config.enable_device_from_file(str(self.path), repeat_playback=False)
-            # Resolved before start: the playback device is the one `start` uses, so it is switched
-            # out of real time before its first frame is handed on.
-            device = config.resolve(rs.pipeline_wrapper(self._pipe)).get_device()
-            device.as_playback().set_real_time(False)
-            profile = self._pipe.start(config)
+            # Resolved before start: the playback device is the one `start` uses, so it is checked
+            # and switched out of real time before its first frame is handed on (and a bag that is
+            # refused is never played: stopping a playback just started crashed 1 run in 240).
+            resolved = config.resolve(rs.pipeline_wrapper(self._pipe))
         except RuntimeError as err:
-            reason = str(err).strip().splitlines()[0] if str(err).strip() else "librealsense refused it"
-            raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file ({reason})") from None
+            raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file ({_first_line(err)})") from None
+        self._playback = resolved.get_device().as_playback()
+        self.stream = self._stream(resolved)
+        self._playback.set_real_time(False)
         try:
-            self._playback = profile.get_device().as_playback()
-            self.stream = self._stream(profile)
-        except BaseException:
-            self._pipe.stop()
-            raise
+            self._pipe.start(config)
+        except RuntimeError as err:
+            raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file ({_first_line(err)})") from None
 
     def _stream(self, profile) -> BagStream:
         rs = self._rs
