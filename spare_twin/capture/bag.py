@@ -143,7 +143,7 @@ class BagReader:
     def frames(self) -> Iterator[tuple[np.ndarray, np.ndarray, float]]:
         """(uint8 RGB colour, uint16 depth aligned to it, seconds since the first frameset) for each
         frameset, until the bag ends."""
-        rs, t0_ms, last_number, waited_s = self._rs, None, None, 0.0
+        rs, t0_ms, last_number, waited_s, pending = self._rs, None, None, 0.0, None
         while True:
             ok, frameset = self._pipe.try_wait_for_frames(_POLL_MS)
             if not ok:
@@ -155,10 +155,23 @@ class BagReader:
                     return
                 continue
             waited_s = 0.0
-            aligned = frameset if self._align is None else self._align.process(frameset)
-            color, depth = aligned.get_color_frame(), aligned.get_depth_frame()
+            color, depth = frameset.get_color_frame(), frameset.get_depth_frame()
+            if bool(color) != bool(depth) and self._align is None:
+                # the syncer can hand a pair on as two halves (seen on a loaded machine for the first
+                # frame): a half waits for the other half with the same timestamp
+                half = color or depth
+                other, pending = pending, (half, frameset.get_timestamp())
+                if other is None or other[1] != frameset.get_timestamp():
+                    continue
+                pending = None
+                color, depth = (half, other[0]) if color else (other[0], half)
+            elif self._align is not None and color and depth:
+                aligned = self._align.process(frameset)
+                color, depth = aligned.get_color_frame(), aligned.get_depth_frame()
             if not color or not depth or color.get_frame_number() == last_number:
-                continue  # a frameset without a pair, or one handed on again: no new frame
+                if not (color and depth):
+                    print(f"{self.path}: a frameset without its colour or depth half, skipped", file=sys.stderr)
+                continue  # or one handed on again: no new frame
             last_number = color.get_frame_number()
             t0_ms = frameset.get_timestamp() if t0_ms is None else t0_ms
             rgb = np.array(self._to_rgb(np.asanyarray(color.get_data())), dtype=np.uint8)
