@@ -5,7 +5,8 @@ Modules (each imports open3d / opencv / rerun only where used):
 - `checks`       range checks of settings (one-line errors naming the field).
 - `frames`       RGB-D frame helpers: depth sanity checks, intrinsics, resizing, back-projection.
 - `layouts`      listing the frames of a 7-Scenes / tsdf-fusion, TUM RGB-D or Open3D-recorder folder.
-- `bag`          RealSense `.bag` files, every frameset in order (librealsense's playback out of real time).
+- `bag`          RealSense `.bag` files, read from the file (rosbags): colour and depth paired by time.
+- `align`        depth resampled into another camera's grid (a RealSense's depth into its colour).
 - `importers`    those folders and `.bag` files into a recording (`spare_twin.recording`), every frame
                  checked before anything is written, keeping the sensor's depth scale.
 - `record`       live capture from an Intel RealSense through open3d, and the stream writer it shares

@@ -1,40 +1,52 @@
-"""RealSense `.bag` files, read frame by frame through librealsense's own playback (pyrealsense2).
+"""RealSense `.bag` files, read message by message as the file stores them (rosbags).
 
-A .bag is played back by librealsense, which hands each frameset on through a queue one frameset
-deep. By default it does so in real time, at the frames' recorded times, so a reader that stalls
-loses frames. open3d's RSBagReader leaves real-time playback on and does not expose the switch: on
-a loaded 2-core machine it lost one of four frames 2 s apart (release 0.6.5's CI). pyrealsense2 is
-the same librealsense with `set_real_time(False)` exposed. Playback then waits for the reader, and
-every frameset in the file arrives in order, whatever the load.
+A .bag is a ROS 1 bag in librealsense's layout (file versions 2 to 4): per stream, images on
+`/device_0/sensor_<s>/<Depth|Color>_<i>/image/data`, intrinsics on `.../info/camera_info`, the pose
+against the device's reference stream on `.../tf/<group>`, the frame rate on `.../info`; the depth
+unit on the depth sensor's `Depth Units` option; the device's name on `/device_0/info`.
 
-Depth is aligned to colour with librealsense's `align` (what open3d's reader does), so one set of
-intrinsics, the colour camera's, describes both images. Times are the frames' own timestamps from the
-first frame, so importing a bag twice gives the same files.
+Reading the file directly, not through librealsense's playback, is what makes an import lossless and
+the same every time: the playback hands framesets on from its own threads through a one-deep queue
+and a syncer, and on a loaded 2-core machine it lost one frame of four both in real time (open3d's
+reader, release 0.6.5) and out of it (pyrealsense2, 0.6.6). Here a colour frame and a depth frame
+are paired by their timestamps, each frame once, in the file's order; a frame left without a partner
+is counted and said, never dropped silently.
+
+Depth is resampled into the colour camera's grid (`capture.align`), so the colour camera's intrinsics
+describe both images; where the two streams already share one camera it is passed on as it is.
 """
 
 from __future__ import annotations
 
+import re
 import sys
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
-from datetime import timedelta
 from pathlib import Path
 
 import numpy as np
 
+from spare_twin.capture.align import align_depth
 from spare_twin.capture.frames import K_from
 from spare_twin.errors import SpareTwinError
 
-#: How long a playback that still says "playing" may go without a frameset before the reading ends
-#: (librealsense's non-real-time playback is known to hang on some files with gaps).
-STALL_S = 10.0
-#: One wait for the next frameset; the loop checks whether playback has stopped in between.
-_POLL_MS = 100
+#: The image topics of device 0's depth and colour streams: sensor index, stream kind, stream index.
+_IMAGE_TOPIC = re.compile(r"^/device_0/sensor_(\d+)/(Depth|Color)_(\d+)/image/data$")
+#: Colour encodings a bag may store, and how to make 8-bit RGB of them.
+_TO_RGB = {"rgb8": lambda a: a, "bgr8": lambda a: a[..., ::-1], "rgba8": lambda a: a[..., :3],
+           "bgra8": lambda a: a[..., 2::-1]}  # fmt: skip
+_DEPTH_ENCODINGS = ("mono16", "16UC1")
+#: librealsense's depth unit where a bag does not say (1 mm).
+DEFAULT_DEPTH_SCALE = 0.001
+#: Frames of one stream held back waiting for a partner, at most (a stream that stops for longer
+#: than this has its oldest frames counted unpaired, so memory stays bounded).
+_MAX_WAITING = 64
 
 
 @dataclass(frozen=True)
 class BagStream:
-    """What a bag says of its stream: the colour camera's intrinsics (depth is aligned to it)."""
+    """What a bag says of its streams: the colour camera's intrinsics (depth is resampled into it)."""
 
     K: np.ndarray
     """3x3 intrinsics in pixels (float64)."""
@@ -43,96 +55,134 @@ class BagStream:
     depth_scale: float
     """Metres per depth unit."""
     fps: float
+    """The colour stream's frame rate; 0 where the bag does not say."""
     device_name: str
-    duration_s: float
-
-    @property
-    def expected_frames(self) -> int | None:
-        """About how many framesets the bag holds (for a progress bar), None when unknown: its
-        duration runs from the first frame's time to the last's."""
-        return int(round(self.duration_s * self.fps)) + 1 if self.duration_s > 0 and self.fps > 0 else None
+    expected_frames: int
+    """Framesets the bag can give at most: the fewer of its depth and colour images."""
 
 
-#: Colour formats a bag may store, and how to make 8-bit RGB of them.
-_TO_RGB = {"rgb8": lambda a: a, "bgr8": lambda a: a[..., ::-1], "rgba8": lambda a: a[..., :3],
-           "bgra8": lambda a: a[..., 2::-1]}  # fmt: skip
+@dataclass(frozen=True)
+class _Camera:
+    topic: str
+    sensor: int
+    K: np.ndarray
+    width: int
+    height: int
+    fps: float
+    T_stream_reference: np.ndarray | None
+    """4x4, metres: the device's reference stream -> this stream (librealsense's extrinsics)."""
+    frames: int
 
 
 def _first_line(err: Exception) -> str:
     text = str(err).strip()
-    return text.splitlines()[0] if text else "librealsense refused it"
+    return text.splitlines()[0] if text else type(err).__name__
 
 
-def _same_camera(depth, color) -> bool:
-    """Whether the depth and colour stream profiles see through one camera: the same intrinsics and
-    distortion, and an identity transform between them."""
-    d, c = depth.as_video_stream_profile().get_intrinsics(), color.as_video_stream_profile().get_intrinsics()
-    same_intrinsics = (d.width, d.height, d.fx, d.fy, d.ppx, d.ppy, d.model) == (
-        c.width, c.height, c.fx, c.fy, c.ppx, c.ppy, c.model
-    ) and list(d.coeffs) == list(c.coeffs)  # fmt: skip
-    T = depth.get_extrinsics_to(color)
-    return same_intrinsics and np.allclose(T.rotation, np.eye(3).ravel()) and not np.any(T.translation)
+def _T_from_tf(tf) -> np.ndarray:
+    """A geometry_msgs/Transform as a 4x4 matrix (librealsense writes its extrinsics this way)."""
+    from scipy.spatial.transform import Rotation
+
+    q = tf.rotation
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix()
+    T[:3, 3] = (tf.translation.x, tf.translation.y, tf.translation.z)
+    return T
 
 
 class BagReader:
-    """An open .bag: `stream` says what it holds; `frames()` yields each frameset once, in order.
-    Opening refuses (one line, naming the file) what is not a readable bag with a depth and a
-    colour stream; use it as a context manager, or call `close()`."""
+    """An open .bag: `stream` says what it holds; `frames()` yields each depth and colour pair once,
+    in order. Opening refuses (one line, naming the file) what is not a readable bag with a depth and
+    a colour stream; use it as a context manager, or call `close()`."""
 
     def __init__(self, path: str | Path):
-        import pyrealsense2 as rs
+        from rosbags.rosbag1 import Reader
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         self.path = Path(path)
         if not self.path.is_file():
             raise SpareTwinError(f"{self.path}: no such file")
-        self._rs, self._pipe = rs, rs.pipeline()
-        config = rs.config()
+        self._bag = Reader(self.path)
         try:
-            config.enable_device_from_file(str(self.path), repeat_playback=False)
-            # Resolved before start: the playback device is the one `start` uses, so it is checked
-            # and switched out of real time before its first frame is handed on (and a bag that is
-            # refused is never played: stopping a playback just started crashed 1 run in 240).
-            resolved = config.resolve(rs.pipeline_wrapper(self._pipe))
-        except RuntimeError as err:
-            raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file ({_first_line(err)})") from None
-        self._playback = resolved.get_device().as_playback()
-        self.stream = self._stream(resolved)
-        self._playback.set_real_time(False)
-        try:
-            self._pipe.start(config)
-        except RuntimeError as err:
+            self._bag.open()
+            # every message type as the bag itself defines it (librealsense adds its own)
+            self._types = get_typestore(Stores.EMPTY)
+            for c in self._bag.connections:
+                self._types.register(get_types_from_msg(c.msgdef.data, c.msgtype))
+            self._depth, self._colour, self.stream = self._read_streams()
+        except SpareTwinError:
+            self.close()
+            raise
+        except Exception as err:  # rosbags raises its own errors, and struct/value errors on bad bytes
+            self.close()
             raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file ({_first_line(err)})") from None
 
-    def _stream(self, profile) -> BagStream:
-        rs = self._rs
-        streams = {s.stream_type(): s for s in profile.get_streams()}
-        wanted = (("depth", rs.stream.depth), ("colour", rs.stream.color))
-        missing = [name for name, kind in wanted if kind not in streams]
+    # -- what the bag holds --------------------------------------------------------------------------
+
+    def _messages(self, topic_pattern: str):
+        wanted = [c for c in self._bag.connections if re.fullmatch(topic_pattern, c.topic)]
+        if not wanted:
+            return
+        for conn, _, raw in self._bag.messages(connections=wanted):
+            yield conn.topic, self._types.deserialize_ros1(raw, conn.msgtype)
+
+    def _read_streams(self) -> tuple[_Camera, _Camera, BagStream]:
+        version = [m.data for _, m in self._messages(re.escape("/file_version"))]
+        if not version:
+            raise SpareTwinError(f"{self.path}: not a RealSense .bag (no /file_version)")
+        if version[0] < 2:
+            raise SpareTwinError(f"{self.path}: RealSense .bag file version {version[0]} is too old (2 or later)")
+        streams: dict[str, tuple[int, str]] = {}
+        for c in self._bag.connections:
+            found = _IMAGE_TOPIC.match(c.topic)
+            if found and found[2] not in streams:
+                streams[found[2]] = (int(found[1]), c.topic.removesuffix("/image/data"))
+        missing = [name for name, kind in (("depth", "Depth"), ("colour", "Color")) if kind not in streams]
         if missing:
             raise SpareTwinError(f"{self.path}: the bag has no {' and no '.join(missing)} stream")
-        color, depth = streams[rs.stream.color], streams[rs.stream.depth]
-        fmt = str(color.format()).rsplit(".", 1)[-1]
-        if fmt not in _TO_RGB:
-            raise SpareTwinError(f"{self.path}: colour format {fmt} is not one of {', '.join(_TO_RGB)}")
-        if str(depth.format()).rsplit(".", 1)[-1] != "z16":
-            raise SpareTwinError(f"{self.path}: depth format {depth.format()} is not z16")
-        self._to_rgb = _TO_RGB[fmt]
-        i = color.as_video_stream_profile().get_intrinsics()
-        # Depth already in the colour camera's pixel grid needs no resampling, and librealsense's
-        # align would still punch holes into it (pixel corners rounded to neighbours).
-        self._align = None if _same_camera(depth, color) else rs.align(rs.stream.color)
-        device = profile.get_device()
-        name_key = rs.camera_info.name
-        return BagStream(
-            K=K_from(i.fx, i.fy, i.ppx, i.ppy),
-            width=int(i.width),
-            height=int(i.height),
-            # librealsense keeps it as float32: 0.001 comes back as 0.0010000000474974513
-            depth_scale=float(str(np.float32(device.first_depth_sensor().get_depth_scale()))),
-            fps=float(color.fps()),
-            device_name=device.get_info(name_key) if device.supports(name_key) else "",
-            duration_s=self._playback.get_duration() / timedelta(seconds=1),
-        )
+        depth, colour = (self._camera(*streams[kind]) for kind in ("Depth", "Color"))
+        name = next((m.value for m in self._all("/device_0/info") if m.key == "Name"), "")
+        stream = BagStream(
+            K=colour.K, width=colour.width, height=colour.height, depth_scale=self._depth_scale(depth.sensor),
+            fps=colour.fps, device_name=name, expected_frames=min(depth.frames, colour.frames),
+        )  # fmt: skip
+        if depth.T_stream_reference is None or colour.T_stream_reference is None:
+            same_grid = (depth.width, depth.height) == (colour.width, colour.height) and np.allclose(depth.K, colour.K)
+            if not same_grid:
+                raise SpareTwinError(f"{self.path}: depth and colour streams differ but the bag holds no extrinsics")
+        return depth, colour, stream
+
+    def _all(self, topic: str) -> list:
+        return [m for _, m in self._messages(re.escape(topic))]
+
+    def _camera(self, sensor: int, base: str) -> _Camera:
+        infos = self._all(f"{base}/info/camera_info")
+        if not infos:
+            raise SpareTwinError(f"{self.path}: no intrinsics for {base} ({base}/info/camera_info)")
+        ci = infos[-1]
+        K = np.asarray(ci.K, np.float64).reshape(3, 3)
+        rates = self._all(f"{base}/info")
+        tfs = [m for _, m in self._messages(re.escape(base) + r"/tf/\d+")]
+        frames = sum(c.msgcount for c in self._bag.connections if c.topic == f"{base}/image/data")
+        return _Camera(
+            topic=f"{base}/image/data", sensor=sensor, K=K_from(K[0, 0], K[1, 1], K[0, 2], K[1, 2]),
+            width=int(ci.width), height=int(ci.height), fps=float(rates[-1].fps) if rates else 0.0,
+            T_stream_reference=_T_from_tf(tfs[-1]) if tfs else None, frames=frames,
+        )  # fmt: skip
+
+    def _depth_scale(self, sensor: int) -> float:
+        """The depth sensor's `Depth Units` option: a Float32 topic from file version 3, a property
+        (key/value text) in version 2."""
+        option = self._all(f"/device_0/sensor_{sensor}/option/Depth Units/value")
+        if option:
+            value = float(option[-1].data)
+        else:
+            props = [m for m in self._all(f"/device_0/sensor_{sensor}/property") if m.key == "Depth Units"]
+            value = float(props[-1].value) if props else DEFAULT_DEPTH_SCALE
+        if not (np.isfinite(value) and value > 0):
+            raise SpareTwinError(f"{self.path}: depth units {value} is not a positive number of metres")
+        # librealsense keeps it as float32: 0.001 comes back as 0.0010000000474974513
+        return float(str(np.float32(value)))
 
     @property
     def source(self) -> dict:
@@ -140,46 +190,82 @@ class BagReader:
         name = self.stream.device_name or "Intel RealSense"
         return {"kind": "sensor", "sensor_model": name, "layout": "bag", "path": str(self.path.resolve())}
 
+    # -- frames ----------------------------------------------------------------------------------------
+
+    def _image(self, msg, camera: _Camera) -> np.ndarray:
+        """An Image message as (height, width[, channels]) pixels: uint16 depth or 8-bit RGB colour."""
+        if (msg.width, msg.height) != (camera.width, camera.height):
+            raise SpareTwinError(
+                f"{self.path}: {camera.topic} frame {msg.header.seq} is {msg.width}x{msg.height}, "
+                f"its stream says {camera.width}x{camera.height}"
+            )
+        data = np.asarray(msg.data, np.uint8).reshape(msg.height, msg.step)
+        if camera is self._depth:
+            if msg.encoding not in _DEPTH_ENCODINGS:
+                raise SpareTwinError(f"{self.path}: depth encoding {msg.encoding} is not 16-bit ({_DEPTH_ENCODINGS})")
+            depth = data[:, : 2 * msg.width].copy().view(">u2" if msg.is_bigendian else "<u2")
+            return depth.astype(np.uint16)
+        to_rgb = _TO_RGB.get(msg.encoding)
+        if to_rgb is None:
+            raise SpareTwinError(f"{self.path}: colour encoding {msg.encoding} is not one of {', '.join(_TO_RGB)}")
+        channels = 4 if msg.encoding.endswith("a8") else 3
+        pixels = data[:, : channels * msg.width].reshape(msg.height, msg.width, channels)
+        return np.ascontiguousarray(to_rgb(pixels), dtype=np.uint8)
+
+    def _depth_in_colour(self, depth_u16: np.ndarray) -> np.ndarray:
+        d, c = self._depth, self._colour
+        if d.T_stream_reference is None or c.T_stream_reference is None:
+            return depth_u16  # one grid, no extrinsics: checked at opening
+        T_colour_depth = c.T_stream_reference @ np.linalg.inv(d.T_stream_reference)
+        same = (d.width, d.height) == (c.width, c.height) and np.allclose(d.K, c.K)
+        if same and np.allclose(T_colour_depth, np.eye(4), atol=1e-9):
+            return depth_u16  # one camera: resampling would only blur it
+        return align_depth(depth_u16, d.K, c.K, T_colour_depth, (c.width, c.height), self.stream.depth_scale)
+
     def frames(self) -> Iterator[tuple[np.ndarray, np.ndarray, float]]:
-        """(uint8 RGB colour, uint16 depth aligned to it, seconds since the first frameset) for each
-        frameset, until the bag ends."""
-        rs, t0_ms, last_number, waited_s, pending = self._rs, None, None, 0.0, None
-        while True:
-            ok, frameset = self._pipe.try_wait_for_frames(_POLL_MS)
-            if not ok:
-                if self._playback.current_status() == rs.playback_status.stopped:
-                    return
-                waited_s += _POLL_MS / 1000
-                if waited_s >= STALL_S:
-                    print(f"{self.path}: playback stalled for {STALL_S:.0f} s; reading ends here", file=sys.stderr)
-                    return
-                continue
-            waited_s = 0.0
-            color, depth = frameset.get_color_frame(), frameset.get_depth_frame()
-            if bool(color) != bool(depth) and self._align is None:
-                # the syncer can hand a pair on as two halves (seen on a loaded machine for the first
-                # frame): a half waits for the other half with the same timestamp
-                half = color or depth
-                other, pending = pending, (half, frameset.get_timestamp())
-                if other is None or other[1] != frameset.get_timestamp():
-                    continue
-                pending = None
-                color, depth = (half, other[0]) if color else (other[0], half)
-            elif self._align is not None and color and depth:
-                aligned = self._align.process(frameset)
-                color, depth = aligned.get_color_frame(), aligned.get_depth_frame()
-            if not color or not depth or color.get_frame_number() == last_number:
-                if not (color and depth):
-                    print(f"{self.path}: a frameset without its colour or depth half, skipped", file=sys.stderr)
-                continue  # or one handed on again: no new frame
-            last_number = color.get_frame_number()
-            t0_ms = frameset.get_timestamp() if t0_ms is None else t0_ms
-            rgb = np.array(self._to_rgb(np.asanyarray(color.get_data())), dtype=np.uint8)
-            depth_u16 = np.array(np.asanyarray(depth.get_data()), dtype=np.uint16)
-            yield rgb, depth_u16, (frameset.get_timestamp() - t0_ms) / 1000
+        """(uint8 RGB colour, uint16 depth in the colour camera's grid, seconds since the first pair)
+        for each colour frame and the depth frame nearest it in time, in the file's order, until the
+        bag ends. A frame with no partner within half a frame period is left out and counted; the
+        count is said on stderr at the end."""
+        d, c = self._depth, self._colour
+        rate = max(d.fps, c.fps) or 30.0
+        tolerance_ns = round(0.5e9 / rate)
+        waiting: dict[str, deque] = {d.topic: deque(), c.topic: deque()}
+        last_seq: dict[str, int] = {}
+        unpaired = {d.topic: 0, c.topic: 0}
+        t0_ns = None
+        for topic, msg in self._messages(f"{re.escape(d.topic)}|{re.escape(c.topic)}"):
+            if last_seq.get(topic) == msg.header.seq:
+                continue  # the same frame written again
+            last_seq[topic] = msg.header.seq
+            queue = waiting[topic]
+            queue.append((msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg))
+            if len(queue) > _MAX_WAITING:
+                queue.popleft()
+                unpaired[topic] += 1
+            while waiting[d.topic] and waiting[c.topic]:
+                (t_d, m_d), (t_c, m_c) = waiting[d.topic][0], waiting[c.topic][0]
+                if abs(t_c - t_d) <= tolerance_ns:
+                    waiting[d.topic].popleft(), waiting[c.topic].popleft()
+                    t0_ns = t_c if t0_ns is None else t0_ns
+                    depth = self._depth_in_colour(self._image(m_d, d))
+                    yield self._image(m_c, c), depth, (t_c - t0_ns) / 1e9
+                else:  # the earlier of the two can no longer find a partner
+                    late = d.topic if t_d < t_c else c.topic
+                    waiting[late].popleft()
+                    unpaired[late] += 1
+        for topic, queue in waiting.items():
+            unpaired[topic] += len(queue)
+        if any(unpaired.values()):
+            print(
+                f"{self.path}: {unpaired[d.topic]} depth and {unpaired[c.topic]} colour frames had no partner "
+                f"within {tolerance_ns / 1e6:.1f} ms and were left out",
+                file=sys.stderr,
+            )
 
     def close(self) -> None:
-        self._pipe.stop()
+        if self._bag.bio is not None:
+            self._bag.close()
 
     def __enter__(self) -> BagReader:
         return self

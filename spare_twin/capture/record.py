@@ -80,6 +80,11 @@ def o3d_camera(md) -> Camera:
     return Camera("cam0", int(md.width), int(md.height), K, None, "unknown")
 
 
+def o3d_depth_scale(md) -> float:
+    """Metres per depth unit from open3d's RGBD video metadata `md` (which keeps units per metre)."""
+    return 1.0 / float(md.depth_scale)
+
+
 def stream_to_recording(
     frames,
     camera: Camera,
@@ -194,7 +199,7 @@ def record_realsense(
         md = sensor.get_metadata()
         source = {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense", "serial": md.serial_number,
                   "layout": "live"}  # fmt: skip
-        depth_scale = 1.0 / float(md.depth_scale)  # open3d: depth units per metre
+        depth_scale = o3d_depth_scale(md)
         return stream_to_recording(
             frames((int(md.height), int(md.width))), o3d_camera(md), float(md.fps), depth_scale, out, source, _Opts,
             cfg.max_frames, kind=RECORD, inputs=inputs, force=force,

@@ -22,7 +22,7 @@ import numpy as np
 
 from spare_twin.capture.bag import BagReader
 from spare_twin.capture.frames import check_depth
-from spare_twin.capture.record import RecordConfig, o3d_camera, o3d_frame_arrays, start_realsense
+from spare_twin.capture.record import RecordConfig, o3d_camera, o3d_depth_scale, o3d_frame_arrays, start_realsense
 from spare_twin.errors import SpareTwinError
 from spare_twin.recording import Recording, RecordingWriter
 
@@ -200,7 +200,7 @@ class RealSenseSource(Source):
         cam = o3d_camera(md)
         source = {"kind": "sensor", "sensor_model": md.device_name or "Intel RealSense", "layout": "live",
                   "serial": md.serial_number}  # fmt: skip
-        depth_scale = 1.0 / float(md.depth_scale)  # open3d: depth units per metre
+        depth_scale = o3d_depth_scale(md)
         self.info = StreamInfo(cam.K, cam.width, cam.height, depth_scale, float(md.fps) or 30.0, source, None)
 
     def frames(self, stop: threading.Event) -> Iterator[StreamFrame]:
