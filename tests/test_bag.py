@@ -285,3 +285,36 @@ def test_a_frame_without_its_partner_is_left_out_and_said(handheld_rec, tmp_path
         assert np.array_equal(c, colour[f]) and np.array_equal(d, depth[f])
     err = capsys.readouterr().err
     assert "1 depth and 0 colour frames had no partner" in err and "dropped.bag" in err
+
+
+def test_a_bag_cut_off_is_one_line_and_writes_nothing(bag, tmp_path, capsys):
+    """A bag whose copy stopped half way (no index, chunks cut off): one line naming it, no output."""
+    cut = tmp_path / "cut.bag"
+    data = bag.read_bytes()
+    cut.write_bytes(data[: len(data) // 2])
+    code, _, err = run_cli(["capture", "import", str(cut), "--layout", "bag", "--out", str(tmp_path / "r")], capsys)
+    assert code == 1 and len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
+    assert "cut.bag" in err and not (tmp_path / "r").exists()
+
+
+def test_a_bag_unreadable_part_way_is_one_line(bag, monkeypatch):
+    """A chunk that cannot be read after the first frames (a damaged disk, a corrupt copy whose index
+    survived): the frames read so far, then one line naming the file and where it stopped."""
+    import struct
+
+    from spare_twin.capture.bag import BagReader
+    from spare_twin.errors import SpareTwinError
+
+    pairs = BagReader._pairs
+
+    def breaks_after_one(self):
+        it = pairs(self)
+        yield next(it)
+        raise struct.error("unpack requires a buffer of 4 bytes")
+
+    monkeypatch.setattr(BagReader, "_pairs", breaks_after_one)
+    got = []
+    with BagReader(bag) as reader, pytest.raises(SpareTwinError, match=r"sweep\.bag: unreadable after frame 1 \("):
+        for frame in reader.frames():
+            got.append(frame)
+    assert len(got) == 1

@@ -226,39 +226,47 @@ class BagReader:
         """(uint8 RGB colour, uint16 depth in the colour camera's grid, seconds since the first pair)
         for each colour frame and the depth frame nearest it in time, in the file's order, until the
         bag ends. A frame with no partner within half a frame period is left out and counted; the
-        count is said on stderr at the end."""
-        d, c = self._depth, self._colour
-        rate = max(d.fps, c.fps) or 30.0
-        tolerance_ns = round(0.5e9 / rate)
-        waiting: dict[str, deque] = {d.topic: deque(), c.topic: deque()}
+        count is said on stderr at the end. A bag that cannot be read on is a one-line error."""
+        d, c, t0_ns, k = self._depth, self._colour, None, 0
+        try:
+            for m_d, m_c, t_ns in self._pairs():
+                t0_ns = t_ns if t0_ns is None else t0_ns
+                yield self._image(m_c, c), self._depth_in_colour(self._image(m_d, d)), (t_ns - t0_ns) / 1e9
+                k += 1
+        except SpareTwinError:
+            raise
+        except Exception as err:  # a chunk cut off or corrupt: rosbags' own errors, struct errors
+            raise SpareTwinError(f"{self.path}: unreadable after frame {k} ({_first_line(err)})") from None
+
+    def _pairs(self) -> Iterator[tuple[object, object, int]]:
+        """(depth message, colour message, colour time in ns) paired by their header stamps."""
+        d, c = self._depth.topic, self._colour.topic
+        tolerance_ns = round(0.5e9 / (max(self._depth.fps, self._colour.fps) or 30.0))
+        waiting: dict[str, deque] = {d: deque(), c: deque()}
         last_seq: dict[str, int] = {}
-        unpaired = {d.topic: 0, c.topic: 0}
-        t0_ns = None
-        for topic, msg in self._messages(f"{re.escape(d.topic)}|{re.escape(c.topic)}"):
+        unpaired = {d: 0, c: 0}
+        for topic, msg in self._messages(f"{re.escape(d)}|{re.escape(c)}"):
             if last_seq.get(topic) == msg.header.seq:
                 continue  # the same frame written again
             last_seq[topic] = msg.header.seq
-            queue = waiting[topic]
-            queue.append((msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg))
-            if len(queue) > _MAX_WAITING:
-                queue.popleft()
+            waiting[topic].append((msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, msg))
+            if len(waiting[topic]) > _MAX_WAITING:
+                waiting[topic].popleft()
                 unpaired[topic] += 1
-            while waiting[d.topic] and waiting[c.topic]:
-                (t_d, m_d), (t_c, m_c) = waiting[d.topic][0], waiting[c.topic][0]
+            while waiting[d] and waiting[c]:
+                (t_d, m_d), (t_c, m_c) = waiting[d][0], waiting[c][0]
                 if abs(t_c - t_d) <= tolerance_ns:
-                    waiting[d.topic].popleft(), waiting[c.topic].popleft()
-                    t0_ns = t_c if t0_ns is None else t0_ns
-                    depth = self._depth_in_colour(self._image(m_d, d))
-                    yield self._image(m_c, c), depth, (t_c - t0_ns) / 1e9
+                    waiting[d].popleft(), waiting[c].popleft()
+                    yield m_d, m_c, t_c
                 else:  # the earlier of the two can no longer find a partner
-                    late = d.topic if t_d < t_c else c.topic
-                    waiting[late].popleft()
-                    unpaired[late] += 1
+                    earlier = d if t_d < t_c else c
+                    waiting[earlier].popleft()
+                    unpaired[earlier] += 1
         for topic, queue in waiting.items():
             unpaired[topic] += len(queue)
         if any(unpaired.values()):
             print(
-                f"{self.path}: {unpaired[d.topic]} depth and {unpaired[c.topic]} colour frames had no partner "
+                f"{self.path}: {unpaired[d]} depth and {unpaired[c]} colour frames had no partner "
                 f"within {tolerance_ns / 1e6:.1f} ms and were left out",
                 file=sys.stderr,
             )
