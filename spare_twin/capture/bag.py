@@ -265,9 +265,11 @@ class BagReader:
         for topic, queue in waiting.items():
             unpaired[topic] += len(queue)
         if any(unpaired.values()):
+            rates = (self._depth.fps, self._colour.fps)
+            why = f" (depth at {rates[0]:g} fps, colour at {rates[1]:g})" if rates[0] != rates[1] else ""
             print(
                 f"{self.path}: {unpaired[d]} depth and {unpaired[c]} colour frames had no partner "
-                f"within {tolerance_ns / 1e6:.1f} ms and were left out",
+                f"within {tolerance_ns / 1e6:.1f} ms and were left out{why}",
                 file=sys.stderr,
             )
 
