@@ -29,12 +29,16 @@ def write_bag(
     fps: int = BAG_FPS,
     T_colour_depth=None,
     version: int = 2,
+    colour_fps: int | None = None,
+    lz4: bool = False,
 ) -> None:
     """A RealSense .bag (file `version` 2 or 3): device and sensor info, a depth (Z16) stream with
     intrinsics `K_depth` and the identity pose (the device's reference), a colour (RGB8) stream with
     `K_colour` and the pose `T_colour_depth` (4x4, metres; identity when None), the depth unit (a
     property in version 2, an option in 3), then each frame's images and metadata at `fps`.
-    `colour_frames` empty: the depth stream alone; a frame None: that stream skips that frame."""
+    `colour_frames` empty: the depth stream alone; a frame None: that stream skips that frame.
+    `colour_fps`: the colour stream's rate as its stream info says (default `fps`); `lz4`: chunks
+    compressed as the RealSense Viewer's recorder compresses them."""
     from rosbags.rosbag1 import Writer
     from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     from scipy.spatial.transform import Rotation
@@ -55,7 +59,10 @@ def write_bag(
         streams.append(
             ("RGB Camera", "Color_0", "rgb8", colour_frames, np.asarray(K_colour, np.float64), T_colour_depth)
         )
-    with Writer(bag) as w:
+    w = Writer(bag)
+    if lz4:
+        w.set_compression(Writer.CompressionFormat.LZ4)
+    with w:
         conns = {}
 
         def put(topic, msg, t_ns=0):
@@ -78,7 +85,9 @@ def write_bag(
                 put(f"{base}/option/Depth Units/value", T["std_msgs/msg/Float32"](data=depth_scale))
             put(
                 f"{base}/{stream}/info",
-                T["realsense_msgs/msg/StreamInfo"](fps=fps, encoding=encoding, is_recommended=True),
+                T["realsense_msgs/msg/StreamInfo"](
+                    fps=colour_fps or fps if s else fps, encoding=encoding, is_recommended=True
+                ),
             )
             height, width = frames[0].shape[:2]
             P = np.concatenate([K, np.zeros((3, 1))], axis=1).reshape(-1)
@@ -318,3 +327,26 @@ def test_a_bag_unreadable_part_way_is_one_line(bag, monkeypatch):
         for frame in reader.frames():
             got.append(frame)
     assert len(got) == 1
+
+
+def test_a_compressed_bag_with_colour_at_half_the_rate(handheld_rec, tmp_path, capsys):
+    """The RealSense Viewer records with LZ4-compressed chunks, and colour may run at half depth's
+    rate: each colour frame is paired with the depth frame taken with it, the depth frames between
+    them are left out, and the count says why."""
+    from spare_twin.capture.bag import BagReader
+    from spare_twin.recording import Recording
+
+    rec = Recording.open(handheld_rec)
+    cam = rec.cameras[0]
+    depth = [rec.depth_raw(cam.name, f) for f in range(4)]
+    colour = [rec.color(cam.name, f) if f % 2 == 0 else None for f in range(4)]
+    path = tmp_path / "viewer.bag"
+    write_bag(path, depth, colour, cam.K, cam.K, rec.depth_scale, fps=30, colour_fps=15, lz4=True)
+    with BagReader(path) as reader:
+        assert reader.stream.fps == 15
+        got = list(reader.frames())
+    assert [round(t * 30) for *_, t in got] == [0, 2]
+    for (c, d, _), f in zip(got, (0, 2)):
+        assert np.array_equal(c, colour[f]) and np.array_equal(d, depth[f])
+    err = capsys.readouterr().err
+    assert "2 depth and 0 colour frames had no partner" in err and "(depth at 30 fps, colour at 15)" in err
