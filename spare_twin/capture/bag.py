@@ -29,7 +29,7 @@ import numpy as np
 
 from spare_twin.capture.align import align_depth
 from spare_twin.capture.frames import K_from
-from spare_twin.errors import SpareTwinError
+from spare_twin.errors import SpareTwinError, first_line
 
 #: The image topics of device 0's depth and colour streams: sensor index, stream kind, stream index.
 _IMAGE_TOPIC = re.compile(r"^/device_0/sensor_(\d+)/(Depth|Color)_(\d+)/image/data$")
@@ -74,11 +74,6 @@ class _Camera:
     frames: int
 
 
-def _first_line(err: Exception) -> str:
-    text = str(err).strip()
-    return text.splitlines()[0] if text else type(err).__name__
-
-
 def _T_from_tf(tf) -> np.ndarray:
     """A geometry_msgs/Transform as a 4x4 matrix (librealsense writes its extrinsics this way)."""
     from scipy.spatial.transform import Rotation
@@ -110,12 +105,13 @@ class BagReader:
             for c in self._bag.connections:
                 self._types.register(get_types_from_msg(c.msgdef.data, c.msgtype))
             self._depth, self._colour, self.stream = self._read_streams()
+            self._T_colour_depth = self._resampling()
         except SpareTwinError:
             self.close()
             raise
         except Exception as err:  # rosbags raises its own errors, and struct/value errors on bad bytes
             self.close()
-            raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file ({_first_line(err)})") from None
+            raise SpareTwinError(f"{self.path}: not a readable RealSense .bag file ({first_line(err)})") from None
 
     # -- what the bag holds --------------------------------------------------------------------------
 
@@ -146,11 +142,19 @@ class BagReader:
             K=colour.K, width=colour.width, height=colour.height, depth_scale=self._depth_scale(depth.sensor),
             fps=colour.fps, device_name=name, expected_frames=min(depth.frames, colour.frames),
         )  # fmt: skip
-        if depth.T_stream_reference is None or colour.T_stream_reference is None:
-            same_grid = (depth.width, depth.height) == (colour.width, colour.height) and np.allclose(depth.K, colour.K)
+        return depth, colour, stream
+
+    def _resampling(self) -> np.ndarray | None:
+        """T_colour_depth (4x4, metres) where depth must be resampled into the colour grid; None where
+        the two streams share one camera (resampling would only blur it)."""
+        d, c = self._depth, self._colour
+        same_grid = (d.width, d.height) == (c.width, c.height) and np.allclose(d.K, c.K)
+        if d.T_stream_reference is None or c.T_stream_reference is None:
             if not same_grid:
                 raise SpareTwinError(f"{self.path}: depth and colour streams differ but the bag holds no extrinsics")
-        return depth, colour, stream
+            return None
+        T_colour_depth = c.T_stream_reference @ np.linalg.inv(d.T_stream_reference)
+        return None if same_grid and np.allclose(T_colour_depth, np.eye(4), atol=1e-9) else T_colour_depth
 
     def _all(self, topic: str) -> list:
         return [m for _, m in self._messages(re.escape(topic))]
@@ -213,14 +217,12 @@ class BagReader:
         return np.ascontiguousarray(to_rgb(pixels), dtype=np.uint8)
 
     def _depth_in_colour(self, depth_u16: np.ndarray) -> np.ndarray:
-        d, c = self._depth, self._colour
-        if d.T_stream_reference is None or c.T_stream_reference is None:
-            return depth_u16  # one grid, no extrinsics: checked at opening
-        T_colour_depth = c.T_stream_reference @ np.linalg.inv(d.T_stream_reference)
-        same = (d.width, d.height) == (c.width, c.height) and np.allclose(d.K, c.K)
-        if same and np.allclose(T_colour_depth, np.eye(4), atol=1e-9):
-            return depth_u16  # one camera: resampling would only blur it
-        return align_depth(depth_u16, d.K, c.K, T_colour_depth, (c.width, c.height), self.stream.depth_scale)
+        if self._T_colour_depth is None:
+            return depth_u16
+        c = self._colour
+        return align_depth(
+            depth_u16, self._depth.K, c.K, self._T_colour_depth, (c.width, c.height), self.stream.depth_scale
+        )
 
     def frames(self) -> Iterator[tuple[np.ndarray, np.ndarray, float]]:
         """(uint8 RGB colour, uint16 depth in the colour camera's grid, seconds since the first pair)
@@ -236,7 +238,7 @@ class BagReader:
         except SpareTwinError:
             raise
         except Exception as err:  # a chunk cut off or corrupt: rosbags' own errors, struct errors
-            raise SpareTwinError(f"{self.path}: unreadable after frame {k} ({_first_line(err)})") from None
+            raise SpareTwinError(f"{self.path}: unreadable after frame {k} ({first_line(err)})") from None
 
     def _pairs(self) -> Iterator[tuple[object, object, int]]:
         """(depth message, colour message, colour time in ns) paired by their header stamps."""

@@ -30,7 +30,7 @@ from pathlib import Path
 from spare_twin.dataset.backends import SequenceRenderer
 from spare_twin.dataset.generate import GenConfig
 from spare_twin.dataset.store import sequence_filename
-from spare_twin.errors import SpareTwinError
+from spare_twin.errors import SpareTwinError, first_line
 from spare_twin.io import write_bytes_atomic
 
 SHARDS = ("driver", "workers")
@@ -92,7 +92,7 @@ class RaySession:
                     _check_reachable(self.address)
                     ray.init(address=self.address, **kwargs)
             except (ConnectionError, ValueError, RuntimeError) as exc:
-                first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+                first = first_line(exc)
                 if self.address is None:
                     raise SpareTwinError(f"backend ray: cannot start Ray on this machine ({first})") from None
                 raise SpareTwinError(f"ray_address {self.address}: cannot connect to a Ray cluster ({first})") from None
