@@ -118,7 +118,7 @@ class BagReader:
     def _messages(self, topic_pattern: str):
         wanted = [c for c in self._bag.connections if re.fullmatch(topic_pattern, c.topic)]
         if not wanted:
-            return
+            return  # rosbags reads every connection when given none: the whole bag
         for conn, _, raw in self._bag.messages(connections=wanted):
             yield conn.topic, self._types.deserialize_ros1(raw, conn.msgtype)
 
