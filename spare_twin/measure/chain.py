@@ -10,7 +10,6 @@ import time
 from dataclasses import dataclass
 
 from spare_twin.config import PartDims
-from spare_twin.errors import SpareTwinError
 from spare_twin.measure.layers import LayerMeasurement, LayersConfig, measure_profile
 from spare_twin.observe.chain import ChainObservation, observe_views
 from spare_twin.observe.on_object import register_on_object
@@ -19,8 +18,10 @@ from spare_twin.observe.profile import ProfileConfig
 from spare_twin.observe.views import REGISTERED_SWEEP, TRACKED_SWEEP, PosedViews, recording_views, sweep_part
 from spare_twin.recording import Recording
 
-#: `ChainObservation.source` once a registered sweep's views were brought into register on the object.
-ON_OBJECT_SWEEP = "sweep, registered, brought into register on the object"
+#: What `ChainObservation.source` adds once a sweep's views were brought into register on the object.
+ON_OBJECT = ", brought into register on the object"
+#: `ChainObservation.source` of a sweep registered here without poses, then brought into register on the object.
+ON_OBJECT_SWEEP = REGISTERED_SWEEP + ON_OBJECT
 #: Parts of a registered sweep looked at again when the whole gives no chain (`measure_views`).
 SWEEP_PARTS = ((0.0, 0.5), (0.5, 1.0), (0.25, 0.75))
 #: Fewer registered frames than this are not split.
@@ -28,11 +29,6 @@ MIN_FRAMES_TO_SPLIT = 8
 #: A part whose chain fits its points this well (RMS, metres) ends the search: the print's own
 #: roughness and the sensor's noise leave 0.2-0.5 mm; a part still out of register leaves 5 mm and more.
 CLEAN_PART_RMS_M = 0.002
-#: A tracked sweep whose chain fits within this (RMS, metres) is not registered again (`_tracked_or_registered`):
-#: registration seldom fits closer than 0.2-0.25 mm, and it must fit twice as close to replace it.
-CLEAN_TRACKED_RMS_M = 0.0005
-#: ... and registration's reading replaces a tracked one only within this: a chain fused in register.
-CLEAN_REGISTERED_RMS_M = 0.001
 
 
 @dataclass(frozen=True)
@@ -80,22 +76,22 @@ def measure_views(
     object shows little (a Kinect at a metre and more), and the half without that run fuses into one
     chain; so does the half of a sweep before (or after) the object was bumped. The try whose chain
     fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends the search. A tracked
-    sweep is measured as `observe.views` placed it (levelled and brought into register on the object)
-    and, where that reading is loose, registered from its frames alone too (`_tracked_or_registered`).
-    Other views with poses (a rig, views given in memory) are looked at once.
+    sweep, registered here from its tracker's poses (`observe.views`), is brought into register on the
+    object the same way but not split: the tracker holds the frames of every part where the whole put
+    them (on the development captures no part of a tracked sweep read right where the whole did not),
+    and a part of an empty table's sweep read its clutter as 5 links. Other views with poses (a rig,
+    views given in memory) are looked at once.
     Views that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
     `spare_twin.predict.abstain` gives no answer on them)."""
     views = list(seen.views)
     geometry = Geometry(ProfileConfig.for_parts(parts), LayersConfig.for_parts(parts))
     seen_once = observe_views(views, seen.source, seen.registration_s, print_scale, profile_cfg=geometry.profile)
     as_registered = _measure(seen_once, print_scale, geometry, min_arc_deg)
-    if seen.source == TRACKED_SWEEP and seen.frames is not None and len(seen.frames) >= MIN_FRAMES_TO_SPLIT:
-        return _tracked_or_registered(seen, as_registered, print_scale, progress, min_arc_deg, parts)
-    if seen.source != REGISTERED_SWEEP:
+    if seen.source not in (REGISTERED_SWEEP, TRACKED_SWEEP):
         return as_registered
-    on_object, measured = _on_object(views, seen.registration_s, print_scale, geometry)
+    on_object, measured = _on_object(views, seen.source, seen.registration_s, print_scale, geometry)
     seconds = _add(on_object.timings_s, as_registered[0].timings_s, but="registration")
-    if as_registered[1].n_links is not None or len(views) < MIN_FRAMES_TO_SPLIT:
+    if as_registered[1].n_links is not None or len(views) < MIN_FRAMES_TO_SPLIT or seen.source == TRACKED_SWEEP:
         best = min(((on_object, measured), as_registered), key=_fit_rank)
         return dataclasses.replace(best[0], timings_s=seconds), best[1]
     why = "the whole did not fuse into one chain"
@@ -106,7 +102,9 @@ def measure_views(
         if best is not None and best[1].rms_m <= CLEAN_PART_RMS_M:
             break
         part_views = sweep_part(seen, part, progress)
-        piece, m = _on_object(list(part_views.views), part_views.registration_s, print_scale, geometry)
+        piece, m = _on_object(
+            list(part_views.views), REGISTERED_SWEEP, part_views.registration_s, print_scale, geometry
+        )
         seconds = _add(seconds, piece.timings_s)
         if m.n_links is not None and (best is None or m.rms_m < best[1].rms_m):
             share = f"frames {100 * part[0]:.0f}-{100 * part[1]:.0f} % of the sweep"
@@ -115,47 +113,13 @@ def measure_views(
     return dataclasses.replace(found, timings_s=seconds), measured
 
 
-def _tracked_or_registered(
-    seen: PosedViews,
-    as_tracked: tuple[ChainObservation, LayerMeasurement],
-    print_scale: float,
-    progress: bool,
-    min_arc_deg: float,
-    parts: PartDims,
-) -> tuple[ChainObservation, LayerMeasurement]:
-    """A tracked sweep as the tracker placed its views (levelled and matched on the object), or, where
-    that reading is loose, as registered here from its frames alone, the tracker's poses set aside.
-
-    A tracker's error is per frame and in all six directions; where it leaves the layers blurred, the
-    views fuse into a wrong count with a loose fit. Registration's reading replaces the tracker's only
-    where it fits as a print and a sensor allow (`CLEAN_REGISTERED_RMS_M`) and at most half as
-    loosely: a loose fit of another count is no better evidence (a 4-link capture read right at
-    4.2 mm RMS as tracked, 2 links at 2.3 mm as registered). A tracked reading within
-    `CLEAN_TRACKED_RMS_M` is kept without trying."""
-    m = as_tracked[1]
-    if m.n_links is not None and m.rms_m <= CLEAN_TRACKED_RMS_M:
-        return as_tracked
-    try:
-        registered = measure_views(sweep_part(seen, (0.0, 1.0), progress), print_scale, progress, min_arc_deg, parts)
-    except SpareTwinError:  # frames that do not register (an empty table's): the tracker's reading stands
-        return as_tracked
-    seconds = _add(as_tracked[0].timings_s, registered[0].timings_s)
-    r = registered[1]
-    closer = r.n_links is not None and r.rms_m <= CLEAN_REGISTERED_RMS_M
-    if closer and (m.n_links is None or r.rms_m <= 0.5 * m.rms_m):
-        why = f"its frames registered here fit {1000 * r.rms_m:.1f} mm (RMS)"
-        why += ", the tracker's poses none" if m.n_links is None else f", the tracker's poses {1000 * m.rms_m:.1f} mm"
-        return dataclasses.replace(registered[0], source=f"{registered[0].source}: {why}", timings_s=seconds), r
-    return dataclasses.replace(as_tracked[0], timings_s=seconds), m
-
-
-def _on_object(views: list[PosedView], registration_s: float, print_scale: float, geometry: Geometry):
-    """(observation, measurement) of registered views brought into register on the object
+def _on_object(views: list[PosedView], source: str, registration_s: float, print_scale: float, geometry: Geometry):
+    """(observation, measurement) of registered views (`source`) brought into register on the object
     (`observe.on_object`); the time that takes is registration, after `registration_s` spent before."""
     t0 = time.perf_counter()
     on_object = register_on_object(views)
     registration_s += time.perf_counter() - t0
-    seen = observe_views(on_object, ON_OBJECT_SWEEP, registration_s, print_scale, profile_cfg=geometry.profile)
+    seen = observe_views(on_object, source + ON_OBJECT, registration_s, print_scale, profile_cfg=geometry.profile)
     return _measure(seen, print_scale, geometry)
 
 

@@ -20,12 +20,8 @@ face seen from the other side of the sweep, views already in register drifted 2.
 captures: counts 45 -> 46 right, E_L better by a fifth or more on 19 and worse by a quarter or more
 on 10 (median 0.0018 -> 0.0014).
 
-A tracked camera's poses (`tracked_into_register`, read by `observe.views`) are off in all six
-directions, each view on its own: every view is first levelled on the common table
-(`level_on_table`: its own table readings' plane taken out by a tilt and a lift), then brought into
-register on the object as above. On the bench's development captures with tracked poses (seeds
-30006-30017, every effect on), counts 1 of 6 -> 6 of 6 with the flying-pixel removal
-(`observe.clean`); 30008 counts only once levelled.
+A tracked camera's sweep is registered from its tracker's poses first (`observe.views`), then
+brought into register here the same way.
 
 Deterministic: fixed reading order, exact nearest neighbours (cKDTree), sums in a fixed order.
 """
@@ -38,7 +34,6 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spare_twin.capture.registration import normal_equations
-from spare_twin.capture.se3 import se3_exp
 from spare_twin.object.kinematics import base_pose
 from spare_twin.observe.points import (
     PointsConfig,
@@ -131,59 +126,3 @@ def register_on_object(
         PosedView(v.depth_m, v.K, T_world_table @ Mi @ T_table_world @ np.asarray(v.T_world_camera, np.float64), v.rgb)
         for v, Mi in zip(views, M)
     ]
-
-
-def level_on_table(
-    views: list[PosedView], points_cfg: PointsConfig = PointsConfig(), bands_m: tuple[float, ...] = (0.015, 0.006)
-) -> list[PosedView]:
-    """The views each tilted and lifted so that its own table lies on the views' common table plane.
-
-    A tracker's poses are each a few tenths of a degree and a few millimetres off, independently: every
-    view's table then lies a little tilted and off height, and what stands on it is blurred up and
-    down. Each view's readings within `bands_m` of the common plane (near where the cameras look)
-    give a plane z = a x + b y + c in the table frame; the view is turned about the table's x and y
-    and moved along z to take it out, with the band narrowing each round. Views that see fewer than
-    100 table readings are left as they are. A registered sweep needs none of this: registration
-    matched whole frames, table and all."""
-    T_world_table, _ = views_table_frame(views, points_cfg)
-    if T_world_table is None:
-        return views
-    T_table_world = np.linalg.inv(T_world_table)
-    out = []
-    for v in views:
-        _, _, world, _ = read_view(v, points_cfg, fine=False)
-        local = rigid(T_table_world, world)
-        local = local[np.linalg.norm(local[:, :2], axis=1) < points_cfg.max_radius_m]
-        M = np.eye(4)  # the view's correction, table frame
-        for band in bands_m:
-            p = rigid(M, local)
-            on = p[np.abs(p[:, 2]) < band]
-            if len(on) < 100:
-                break
-            A = np.stack([on[:, 0], on[:, 1], np.ones(len(on))], axis=1)
-            H, g = normal_equations(A, on[:, 2])
-            a, b, c = np.linalg.solve(H + 1e-9 * np.eye(3), g)
-            # z' = z - (a x + b y + c): a small turn about x by -b and about y by a, a lift by -c
-            M = se3_exp(np.array([-b, a, 0.0, 0.0, 0.0, -c])) @ M
-        T = T_world_table @ M @ T_table_world @ np.asarray(v.T_world_camera, np.float64)
-        out.append(PosedView(v.depth_m, v.K, T, v.rgb))
-    return out
-
-
-#: `tracked_into_register`'s rounds: a tracker's poses start a few millimetres off, closer than a
-#: registration's slips, so fewer rounds and points do (on the six development captures with tracked
-#: poses: the same counts, E_L 0.0146 -> 0.0125 pu mean, about 1 s less). On the rig's eight views
-#: 6.3 mm apart (tests/test_robust_effects.py): 2.8 mm after the full rounds, 3.4 after these, 3.9
-#: after 6 rounds of 1,500 points.
-TRACKED = OnObjectConfig(rounds=8, max_points_per_view=2000)
-
-
-def tracked_into_register(
-    views: list[PosedView], points_cfg: PointsConfig = PointsConfig(), cfg: OnObjectConfig = TRACKED
-) -> list[PosedView]:
-    """A tracked camera's views brought into register, starting from the tracker's poses: each levelled
-    on the common table (`level_on_table`), then turned and slid on what stands on it
-    (`register_on_object`). Tracker poses a few tenths of a degree and a few millimetres off, each
-    on its own, blur a chain's 6.4 mm layers into one another and its foot into the table (bench
-    seed 30008, 3 links: no chain as tracked, the count and lengths within 0.015 pu after)."""
-    return register_on_object(level_on_table(views, points_cfg), points_cfg, cfg)

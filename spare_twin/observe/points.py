@@ -12,9 +12,10 @@ depth views (`PosedView`); nothing here asks where they came from:
    the table;
 3. the object: points between `min_height_m` and `max_height_m` above the table, less those that
    other views see past (`observe.clean.seen_through`: flying pixels and floaters, which otherwise
-   join a chain to the clutter beside it), split into connected components on a `cluster_cell_m`
-   grid; the component that stands on the table (lowest point within `max_base_height_m`) nearest
-   the point the cameras look at is the object; everything else (clutter, walls, the table's edge)
+   join a chain to the clutter beside it), split into objects: points closer than `cluster_link_m`
+   belong to one (single linkage on exact distances: no grid, whose cells the world's axes would
+   place); the one that stands on the table (lowest point within `max_base_height_m`) nearest the
+   point the cameras look at is the object; everything else (clutter, walls, the table's edge)
    is dropped.
 
 A view's own flying pixels (readings between two surfaces at a depth edge) are dropped once, where
@@ -30,10 +31,16 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 from spare_twin.observe.clean import between_surfaces, seen_through
 from spare_twin.threads import side_by_side
+
+#: `PointsConfig.cluster_link_m`: a cell of the grid this replaced always joined points this close
+#: and sometimes twice as far; clutter stands 3 cm from the chain and more (`sim.effects`).
+CLUSTER_LINK_M = 0.012
 
 
 @dataclass(frozen=True)
@@ -71,8 +78,8 @@ class PointsConfig:
     """The printed chains fit a 200 mm bed; nothing on the table that is taller is one."""
     max_radius_m: float = 0.3
     """Only points within this of where the cameras look (a chain reaches 14 cm from its base)."""
-    cluster_cell_m: float = 0.01
-    """Connected components on this grid (26-neighbourhood): clutter a cell apart is separate."""
+    cluster_link_m: float = CLUSTER_LINK_M
+    """Points closer than this are one object; clutter farther from the chain is apart."""
     min_cluster_points: int = 30
     max_base_height_m: float = 0.03
     """The object's lowest point must be this close to the table: it stands on it."""
@@ -360,17 +367,13 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
     if above.sum() < cfg.min_cluster_points:
         return nothing
     idx = np.flatnonzero(above)
-    cells = np.floor(local[idx] / cfg.cluster_cell_m).astype(np.int64)
-    cells -= cells.min(0)
-    grid = np.zeros(cells.max(0) + 1, bool)
-    grid[tuple(cells.T)] = True
-    labels, n_labels = ndimage.label(grid, structure=np.ones((3, 3, 3), bool))
-    point_label = labels[tuple(cells.T)]
+    point_label = _single_linkage(local[idx], cfg.cluster_link_m)
     R = T_world_table[:3, :3]  # world to table frame: R^T d, as rows d @ R
     scored = []
-    for lab in range(1, n_labels + 1):
+    sizes = np.bincount(point_label)
+    for lab in np.flatnonzero(sizes >= cfg.min_cluster_points):
         members = idx[point_label == lab]
-        if len(members) < cfg.min_cluster_points or local[members, 2].min() > cfg.max_base_height_m:
+        if local[members, 2].min() > cfg.max_base_height_m:
             continue  # too small, or floating: not standing on the table
         dist = np.linalg.norm(np.median(local[members, :2], axis=0))
         scored.append((-len(members) / (1.0 + dist / 0.1), lab, members))
@@ -388,6 +391,18 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
         )
         for _, _, members in sorted(scored, key=lambda x: (x[0], x[1]))
     ]
+
+
+def _single_linkage(points: np.ndarray, link_m: float) -> np.ndarray:
+    """Each point's object label: points closer than `link_m` share one (exact neighbours, so the
+    split is the same in any world frame). A grid's cells joined chain and clutter up to twice a
+    cell apart depending on where the world's axes put the cell boundaries: a 6-link sweep read 6
+    links in its first camera's frame and 1 link of a chain merged with the box beside it in its
+    tracker's."""
+    pairs = cKDTree(points).query_pairs(link_m, output_type="ndarray")
+    n = len(points)
+    graph = coo_matrix((np.ones(len(pairs), np.int8), (pairs[:, 0], pairs[:, 1])), shape=(n, n))
+    return connected_components(graph, directed=False)[1]
 
 
 def object_points(views: list[PosedView], cfg: PointsConfig = PointsConfig()) -> ObjectPoints:
