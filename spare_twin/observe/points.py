@@ -374,7 +374,7 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
     for lab in np.flatnonzero(sizes >= cfg.min_cluster_points):
         members = idx[point_label == lab]
         if local[members, 2].min() > cfg.max_base_height_m:
-            continue  # too small, or floating: not standing on the table
+            continue  # floating: not standing on the table
         dist = np.linalg.norm(np.median(local[members, :2], axis=0))
         scored.append((-len(members) / (1.0 + dist / 0.1), lab, members))
     if not scored:
