@@ -77,9 +77,10 @@ def measure_views(
     chain; so does the half of a sweep before (or after) the object was bumped. The try whose chain
     fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends the search. A tracked
     sweep, registered here from its tracker's poses (`observe.views`), is brought into register on the
-    object the same way but not split: the tracker holds the frames of every part where the whole put
-    them (on the development captures no part of a tracked sweep read right where the whole did not),
-    and a part of an empty table's sweep read its clutter as 5 links. Other views with poses (a rig,
+    object the same way but not split (`observe.views` keeps none of its frames): the tracker holds
+    the frames of every part where the whole put them (on the development captures no part of a
+    tracked sweep read right where the whole did not), and a part of an empty table's sweep read its
+    clutter as 5 links. Other views with poses (a rig,
     views given in memory) are looked at once.
     Views that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
     `spare_twin.predict.abstain` gives no answer on them)."""
@@ -91,7 +92,7 @@ def measure_views(
         return as_registered
     on_object, measured = _on_object(views, seen.source, seen.registration_s, print_scale, geometry)
     seconds = _add(on_object.timings_s, as_registered[0].timings_s, but="registration")
-    if as_registered[1].n_links is not None or len(views) < MIN_FRAMES_TO_SPLIT or seen.source == TRACKED_SWEEP:
+    if as_registered[1].n_links is not None or seen.frames is None or len(views) < MIN_FRAMES_TO_SPLIT:
         best = min(((on_object, measured), as_registered), key=_fit_rank)
         return dataclasses.replace(best[0], timings_s=seconds), best[1]
     why = "the whole did not fuse into one chain"

@@ -63,8 +63,8 @@ class PosedViews:
     registration_s: float = 0.0
     """Seconds spent estimating the poses."""
     frames: tuple[RGBDFrame, ...] | None = None
-    """A sweep (registered here or tracked): its frames as read, so that it or a part of it can be
-    registered (again) on its own (`sweep_part`)."""
+    """A sweep registered here without poses: its frames as read, so that a part of it can be
+    registered on its own (`sweep_part`). A tracked sweep keeps none: its parts are not looked at."""
     frames_in_recording: int | None = None
     """How many frames the source has (a sweep's views are a sample of them)."""
 
@@ -140,8 +140,9 @@ def recording_views(
             raise
         # frames with too little in them to match (a few dozen readings each): the poses stand as given
         return PosedViews(tuple(_posed(frames, tracked)), "sweep", frames_in_recording=rec.n_frames)
-    source = REGISTERED_SWEEP if tracked is None else TRACKED_SWEEP
-    return PosedViews(tuple(views), source, seconds, tuple(frames), rec.n_frames)
+    if tracked is None:
+        return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
+    return PosedViews(tuple(views), TRACKED_SWEEP, seconds, frames_in_recording=rec.n_frames)
 
 
 def sweep_part(seen: PosedViews, part: tuple[float, float], progress: bool = False) -> PosedViews:
