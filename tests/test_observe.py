@@ -250,8 +250,7 @@ def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(han
     """A sweep registered here whose views slipped along the table (up to 2 deg, 6 mm) fuses into a
     chain of the wrong count (or, with the flying pixels removed, a blurred one); `measured_chain`
     measures it with its views brought into register on the object, and counts it right."""
-    import types
-
+    from spare_twin.capture.registration import RegistrationResult
     from spare_twin.observe import views
 
     rec = Recording.open(handheld_rec)
@@ -261,7 +260,7 @@ def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(han
     slips = [_yaw(math.radians(rng.uniform(-2.0, 2.0)), rng.uniform(-0.006, 0.006, 2)) for _ in truth]
     poses = np.stack([S @ T for S, T in zip(slips, truth)])
     monkeypatch.setattr(rec, "camera_poses", lambda name: None)  # as if captured without poses
-    monkeypatch.setattr(views, "register_frames", lambda frames, *a: types.SimpleNamespace(poses=poses[: len(frames)]))
+    monkeypatch.setattr(views, "register_frames", lambda frames, *a: RegistrationResult(poses[: len(frames)]))
 
     as_registered = observe_chain(rec, PRINT_SCALE)
     assert as_registered.source == "sweep, registered"
@@ -288,16 +287,7 @@ def test_a_tracked_sweep_is_registered_from_its_trackers_poses(handheld_rec, mon
     n_links = rec.object_config["n_links"]
     cam = rec.cameras[0].name
     truth = np.asarray(rec.camera_poses(cam))  # the render's own poses
-    rng = np.random.default_rng(5)
-    off = []
-    for T in truth:
-        w = rng.normal(0.0, np.radians(0.4), 3)
-        theta = float(np.linalg.norm(w))
-        k = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / theta
-        M = np.eye(4)
-        M[:3, :3] = np.eye(3) + np.sin(theta) * k + (1 - np.cos(theta)) * k @ k
-        M[:3, 3] = rng.normal(0.0, 0.004, 3)
-        off.append(M @ T)
+    off = [_turned(T, 0.4, 0.004, seed) for seed, T in enumerate(truth)]
     monkeypatch.setattr(rec, "camera_poses", lambda name: np.array(off))  # what a tracker reports
 
     seen = recording_views(rec)
@@ -313,6 +303,41 @@ def test_a_tracked_sweep_is_registered_from_its_trackers_poses(handheld_rec, mon
     found, measured = measure_views(seen, PRINT_SCALE)
     assert found.source.startswith(TRACKED_SWEEP)
     assert measured.n_links == n_links and (blurred.n_links != n_links or measured.rms_m < 0.5 * blurred.rms_m)
+
+
+def test_poses_its_frames_agree_with_are_kept_as_given(handheld_rec, monkeypatch):
+    """Poses a sweep's frames agree with (exact ones: a rig, a robot arm) are read as given, to the
+    byte, since registering them would only add ICP's small errors; a tracker's poses a few tenths of
+    a degree and millimetres off are registered. This sparse 320 x 240 sweep's ICP edges agree with
+    its exact poses within a median 0.08 deg and 1.0 mm (a 640 x 480 sweep's within 0.01 deg and
+    0.5 mm), so the limits are widened to suit it."""
+    from spare_twin.capture.frames import load_frames
+    from spare_twin.capture.registration import register_frames
+    from spare_twin.observe import views as views_module
+
+    rec = Recording.open(handheld_rec)
+    exact = np.asarray(rec.camera_poses(rec.cameras[0].name), np.float64)
+    limits = dataclasses.replace(views_module.TRACKED_REGISTRATION, keep_reference_within=(0.15, 0.002))
+    frames = load_frames(rec, rec.cameras[0].name, list(range(rec.n_frames)))
+    tracker = np.array([_turned(T, 0.4, 0.004, seed) for seed, T in enumerate(exact)])
+    assert not register_frames(frames, limits, tracker, progress=False).reference_kept
+
+    monkeypatch.setattr(views_module, "TRACKED_REGISTRATION", limits)
+    seen = views_module.recording_views(rec)
+    assert seen.source == views_module.TRACKED_AS_GIVEN and seen.frames is None
+    assert np.array_equal(np.array([v.T_world_camera for v in seen.views]), exact)
+
+
+def _turned(T: np.ndarray, sigma_deg: float, sigma_m: float, seed: int) -> np.ndarray:
+    """T moved by a random turn (sigma_deg per axis) and slide (sigma_m per axis): a tracker's error."""
+    rng = np.random.default_rng(seed)
+    w = rng.normal(0.0, np.radians(sigma_deg), 3)
+    theta = float(np.linalg.norm(w))
+    k = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / theta
+    M = np.eye(4)
+    M[:3, :3] = np.eye(3) + np.sin(theta) * k + (1 - np.cos(theta)) * k @ k
+    M[:3, 3] = rng.normal(0.0, sigma_m, 3)
+    return M @ T
 
 
 def test_views_read_side_by_side_give_the_same_bytes_as_one_by_one(handheld_rec, monkeypatch):
