@@ -23,7 +23,7 @@ from pathlib import Path
 
 import torch
 
-from spare_twin.errors import SpareTwinError
+from spare_twin.errors import SpareTwinError, first_line
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets.models import input_norms
 from spare_twin.nets.presets import net_from_dict
@@ -117,19 +117,22 @@ def load_model(path: str | Path, device="cpu"):
         message = str(exc)
         raise SpareTwinError(message if message.startswith(str(path)) else f"{path}: {message}") from None
     except (TypeError, ValueError, AttributeError, KeyError) as exc:  # a net entry no configuration fits
-        raise SpareTwinError(f"{path}: net: not a network configuration ({type(exc).__name__}: {exc})") from None
+        raise _not_a_configuration(path, exc) from None
     try:
         model = build_model(net)
     except (TypeError, ValueError, AttributeError, KeyError) as exc:  # a net entry no architecture fits
-        raise SpareTwinError(f"{path}: net: not a network configuration ({type(exc).__name__}: {exc})") from None
+        raise _not_a_configuration(path, exc) from None
     try:
         model.load_state_dict(ck["state_dict"])  # strict: every weight of the architecture, of its shape
     except RuntimeError as exc:
-        raise SpareTwinError(
-            f"{path}: weights do not fit the {net.arch} network ({str(exc).splitlines()[0]})"
-        ) from None
+        raise SpareTwinError(f"{path}: weights do not fit the {net.arch} network ({first_line(exc)})") from None
     model.to(device).eval()
     return model, net, ck
+
+
+def _not_a_configuration(path, exc: Exception) -> SpareTwinError:
+    """The one-line error of a checkpoint whose net entry no configuration or architecture fits."""
+    return SpareTwinError(f"{path}: net: not a network configuration ({type(exc).__name__}: {first_line(exc)})")
 
 
 def new_meta(data_dir, dataset_rig, seed: int, command: str) -> dict:
