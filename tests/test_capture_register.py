@@ -233,3 +233,14 @@ def test_a_wrong_first_step_is_restarted_from_the_smooth_path():
     edges = [Edge(a + 1, a, M, 0.93, 0.001, "guess") for a, M in enumerate(got)]
     _smooth_start(_IcpSettlesOnTheGuess(), edges, RegistrationConfig(max_motion_jump_deg=0.0))
     assert all(e.init == "guess" for e in edges)
+
+
+@pytest.mark.parametrize("limits", [0.1, (0.1,), (0.0, 0.001), (0.1, -1.0), ("a", 0.001)])
+def test_limits_for_keeping_the_reference_poses_that_are_no_limits_are_refused(limits):
+    """`keep_reference_within` is (degrees, metres), both positive, or None; anything else is a
+    one-line error naming the setting."""
+    from spare_twin.capture.registration import RegistrationConfig
+    from spare_twin.errors import SpareTwinError
+
+    with pytest.raises(SpareTwinError, match="keep_reference_within"):
+        RegistrationConfig(keep_reference_within=limits)

@@ -145,7 +145,7 @@ class RegistrationConfig:
         whole("ransac_iterations", self.ransac_iterations, 1)
         whole("seed", self.seed, 0)
         if self.keep_reference_within is not None:
-            if len(self.keep_reference_within) != 2:
+            if not isinstance(self.keep_reference_within, (tuple, list)) or len(self.keep_reference_within) != 2:
                 raise SpareTwinError("keep_reference_within: must be (degrees, metres) or None")
             positive("keep_reference_within degrees", self.keep_reference_within[0], 180.0)
             positive("keep_reference_within metres", self.keep_reference_within[1])
