@@ -80,7 +80,7 @@ def measure_views(
     object the same way but not split (`observe.views` keeps none of its frames): the tracker holds
     the frames of every part where the whole put them (on the development captures no part of a
     tracked sweep read right where the whole did not), and a part of an empty table's sweep read its
-    clutter as 5 links. Other views with poses (a rig,
+    clutter as 5 links. Other views with poses (a rig, a sweep whose frames confirm its own poses,
     views given in memory) are looked at once.
     Views that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
     `spare_twin.predict.abstain` gives no answer on them)."""
