@@ -330,14 +330,11 @@ def test_poses_its_frames_agree_with_are_kept_as_given(handheld_rec, monkeypatch
 
 def _turned(T: np.ndarray, sigma_deg: float, sigma_m: float, seed: int) -> np.ndarray:
     """T moved by a random turn (sigma_deg per axis) and slide (sigma_m per axis): a tracker's error."""
+    from spare_twin.capture.se3 import se3_exp
+
     rng = np.random.default_rng(seed)
-    w = rng.normal(0.0, np.radians(sigma_deg), 3)
-    theta = float(np.linalg.norm(w))
-    k = np.array([[0, -w[2], w[1]], [w[2], 0, -w[0]], [-w[1], w[0], 0]]) / theta
-    M = np.eye(4)
-    M[:3, :3] = np.eye(3) + np.sin(theta) * k + (1 - np.cos(theta)) * k @ k
-    M[:3, 3] = rng.normal(0.0, sigma_m, 3)
-    return M @ T
+    turn = rng.normal(0.0, np.radians(sigma_deg), 3)
+    return se3_exp(np.concatenate([turn, rng.normal(0.0, sigma_m, 3)])) @ T
 
 
 def test_views_read_side_by_side_give_the_same_bytes_as_one_by_one(handheld_rec, monkeypatch):
