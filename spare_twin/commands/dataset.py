@@ -1,5 +1,6 @@
 """`spare-twin dataset --out DATA_DIR --instances K --seed S --workers W [--backend local|ray]
-[--ray-address ADDR]`: generate, resume or extend."""
+[--ray-address ADDR]`: generate, resume or extend; with `--handheld`, the profile network's samples
+from hand-held captures drawn the bench's way (`bench.handheld_samples`)."""
 
 from __future__ import annotations
 
@@ -80,10 +81,56 @@ def register(sub) -> None:
         "up to 0.5 degrees off level), drawn from the sequence's seed (docs/sensor_effects.md); labels stay nominal",
     )
     p.add_argument("--no-segmentation", action="store_true", help="do not store link segmentation images")
+    p.add_argument(
+        "--handheld",
+        action="store_true",
+        help="instead of rig sequences: K hand-held captures drawn as `bench sim2real` draws its real side (every "
+        "effect, 15-60 frames, three sensors, two renderers), each observed as predict observes it and kept as a "
+        "profile sample for the profile network (the capture is deleted); chain seeds 1e9 + S * 1e6 + i, never a "
+        "bench seed. Takes --out, --instances, --seed, --workers, --force only",
+    )
     p.set_defaults(func=run)
 
 
+#: The options `--handheld` does not take, with their defaults.
+_RIG_ONLY = {
+    "preset": None,
+    "backend": "local",
+    "ray_address": None,
+    "ray_shards": "driver",
+    "frames": None,
+    "rig": "spare8",
+    "geometry": "sim",
+    "sim2real": False,
+    "print_physics": False,
+    "no_segmentation": False,
+}
+
+
+def run_handheld(args: argparse.Namespace) -> int:
+    from spare_twin.bench.handheld_samples import HandheldConfig, handheld_dataset
+    from spare_twin.errors import SpareTwinError
+
+    given = [k for k, default in _RIG_ONLY.items() if getattr(args, k) != default]
+    if given:
+        flag = "--" + given[0].replace("_", "-")
+        raise SpareTwinError(f"{flag}: not an option of --handheld (it draws the bench's captures)")
+    if args.instances is None:
+        raise SpareTwinError("--handheld: give --instances K")
+    with flags(instances="--instances", seed="--seed", workers="--workers", out="--out"):
+        hc = HandheldConfig(objects=args.instances, seed=args.seed if args.seed is not None else 0)
+        m = handheld_dataset(args.out, hc, args.workers or 1, force=args.force)
+    s, r = m["samples"], m["rejected"]
+    print(
+        f"{args.out}/samples.npz: {s['train']} training and {s['val']} validation samples from {m['objects']} "
+        f"hand-held captures ({r['train'] + r['val']} gave no chain)"
+    )
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.handheld:
+        return run_handheld(args)
     from spare_twin.dataset.build import PRESETS, generate_dataset
     from spare_twin.dataset.generate import GenConfig
     from spare_twin.errors import SpareTwinError

@@ -203,6 +203,10 @@ class TrainConfig:
     much (the yaw error of a real recording's estimated object frame)."""
     pose_xy_jitter_m: float = 0.0
     """Sim-to-real: and shifted along the table by this std per axis (its base error)."""
+    handheld_repeat: int = 1
+    """Profile network: each training sample of a hand-held sample folder (`spare-twin dataset
+    --handheld`) is in the training split this many times (a few hundred captures beside tens of
+    thousands of rig samples)."""
     init_from: str | None = None
     """Fine-tune: start from this checkpoint's weights (same network configuration) instead of random ones."""
     workers: int = 0
@@ -241,6 +245,7 @@ class TrainConfig:
                 raise SpareTwinError(f"train.{name} {getattr(self, name)!r}: must be true or false")
         for name in ("seed", "workers", "threads"):
             whole(name, 0)
+        whole("handheld_repeat", 1)
         for name in ("samples_per_epoch", "val_samples", "patience", "bn_recalibration_samples"):
             whole(name, 1, optional=True)
         number("lr", positive=True)

@@ -13,7 +13,10 @@ than a training step, so a split is observed once, in several processes, and kep
   split reads it in seconds, and any change to that code observes again.
 
 Several datasets can be given (e.g. a plain one and a `--sim2real` one with clutter); their splits
-are concatenated.
+are concatenated. A folder of hand-held profile samples (`spare-twin dataset --handheld`: captures
+drawn with every effect and observed as `predict` observes them, `bench.handheld_samples`) is read as
+it is, its training samples and their mirror images each `train.handheld_repeat` times (they are few
+beside the rig's).
 """
 
 from __future__ import annotations
@@ -45,6 +48,11 @@ VAL_FRAME_STRIDE = 4
 #: The code a cached evaluation split depends on: its source is part of the cache key.
 _OBSERVING_CODE = ("observe", "measure", "nets/profile_samples.py", "nets/profile_train.py")
 _PACKAGE = Path(__file__).resolve().parents[1]
+#: The output kind and format of a folder of hand-held profile samples (`spare-twin dataset --handheld`).
+HANDHELD_KIND = "dataset --handheld"
+HANDHELD_FORMAT = "spare-twin hand-held profile samples 1"
+#: `split` codes in a hand-held sample folder's samples.npz.
+SPLIT_CODES = {"train": 0, "val": 1}
 
 
 def _sequence_samples(job: tuple) -> dict:
@@ -156,24 +164,51 @@ class ObservedProfiles(Dataset):
     """One split's observed profile samples in docs/design.md's layout (x = the profile image, C x H x W),
     observed on first use (`prepare`) or read from `cache` (an .npz; None: kept in memory only)."""
 
-    def __init__(self, data_dirs: list[Path], split: str, cache: Path | None, progress: bool = True, **observe):
+    def __init__(
+        self,
+        data_dirs: list[Path],
+        split: str,
+        cache: Path | None,
+        progress: bool = True,
+        handheld_dirs: tuple[Path, ...] = (),
+        handheld_repeat: int | None = None,
+        **observe,
+    ):
         self.data_dirs, self.split, self.cache, self.progress, self.observe = data_dirs, split, cache, progress, observe
+        self.handheld_dirs, self.handheld_repeat = tuple(handheld_dirs), handheld_repeat
         self._arrays: dict[str, np.ndarray] | None = None
 
-    def prepare(self) -> dict[str, np.ndarray]:
-        """The split's arrays: the cache's, else observed now (and cached)."""
-        if self._arrays is not None:
-            return self._arrays
+    def _rig_arrays(self) -> dict[str, np.ndarray] | None:
+        """The rig datasets' samples of the split: the cache's, else observed now (and cached); None
+        where only hand-held sample folders were given."""
+        if not self.data_dirs:
+            return None
         if self.cache is not None and self.cache.is_file():
             with np.load(self.cache) as z:
-                self._arrays = {k: z[k] for k in z.files}
-            return self._arrays
-        self._arrays = observe_split(self.data_dirs, self.split, progress=self.progress, **self.observe)
+                return {k: z[k] for k in z.files}
+        arrays = observe_split(self.data_dirs, self.split, progress=self.progress, **self.observe)
         if self.cache is not None:
             try:
-                write_bytes_atomic(self.cache, npz_bytes(self._arrays))
+                write_bytes_atomic(self.cache, npz_bytes(arrays))
             except OSError as exc:  # an unwritable cache costs the next run time, not this one its result
                 print(f"note: could not keep the observed samples in {self.cache} ({exc.strerror})", file=sys.stderr)
+        return arrays
+
+    def prepare(self) -> dict[str, np.ndarray]:
+        """The split's arrays: the rig datasets' (`_rig_arrays`), then each hand-held folder's; for
+        training (`handheld_repeat` given) each sample and its mirror image (`mirrored`), that many times."""
+        if self._arrays is None:
+            parts = [handheld_split(d, self.split) for d in self.handheld_dirs]
+            if self.handheld_repeat is not None:  # training: each sample and its mirror image, repeated
+                parts = [q for p in parts for q in (p, mirrored(p)) for _ in range(self.handheld_repeat)]
+            parts = [p for p in parts if len(p["n"])]
+            rig = self._rig_arrays()
+            if rig is None and not parts:
+                raise SpareTwinError(f"data: no {self.split} samples in {', '.join(map(str, self.handheld_dirs))}")
+            arrays = dict(rig) if rig is not None else {"rejected": np.array(0, np.int64)}
+            for k in ("x", "n", "lengths", "angles"):
+                arrays[k] = np.concatenate(([rig[k]] if rig is not None else []) + [p[k] for p in parts])
+            self._arrays = arrays
         return self._arrays
 
     @property
@@ -194,6 +229,36 @@ class ObservedProfiles(Dataset):
         }
         item.update({k: torch.as_tensor(a[k][i]) for k in a if k.startswith("measured_")})
         return item
+
+
+def is_handheld(d: Path) -> bool:
+    """Whether dataset folder `d` holds hand-held profile samples rather than rig sequences."""
+    try:
+        return read_json(d / "manifest.json").get("format") == HANDHELD_FORMAT
+    except (SpareTwinError, AttributeError):
+        return False
+
+
+def handheld_split(d: Path, split: str) -> dict[str, np.ndarray]:
+    """The samples of `split` in hand-held sample folder `d` (`x`, `n`, `lengths`, `angles`)."""
+    code = SPLIT_CODES.get(split)
+    try:
+        with np.load(d / read_json(d / "manifest.json")["file"]) as z:
+            keep = z["split"] == code
+            return {k: z[k][keep] for k in ("x", "n", "lengths", "angles")}
+    except (OSError, KeyError, ValueError) as exc:
+        raise SpareTwinError(f"data_dir {d}: its hand-held samples do not read ({exc})") from None
+
+
+def mirrored(samples: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The same samples seen in a mirror across the chain's plane's vertical axis: the chain whose joint
+    angles are the negatives, with the same links in the same layers. Its profile is the image flipped
+    left to right (the profile's s range is symmetric about the base axis); its count and lengths are
+    the same."""
+    out = dict(samples)
+    out["x"] = np.ascontiguousarray(samples["x"][..., ::-1])
+    out["angles"] = -samples["angles"]
+    return out
 
 
 def _check_datasets(data_dirs: list[Path]) -> None:
@@ -232,7 +297,14 @@ def profile_samples(
     (every time step, measured, cached for the user, observed by every core)."""
     data_dirs = [Path(d) for d in data_dirs]
     _check_datasets(data_dirs)
+    handheld = tuple(d for d in data_dirs if is_handheld(d))
+    data_dirs = [d for d in data_dirs if d not in handheld]
     if train is None:
+        if handheld:
+            raise SpareTwinError(
+                f"data_dir {handheld[0]}: hand-held profile samples are for training; evaluate reads a dataset "
+                "of the rig's views (`spare-twin bench sim2real` scores hand-held captures)"
+            )
         cache = evaluation_cache(data_dirs, split)
         observe = dict(variants=1, augment=False, measure=True, keep_rejected=True, workers=_evaluation_workers())
         return ObservedProfiles(data_dirs, split, cache, progress, seed=0, **observe)
@@ -245,4 +317,5 @@ def profile_samples(
         frame_stride=1 if augment else VAL_FRAME_STRIDE,
         workers=max(train.workers, 1),
     )
-    return ObservedProfiles(data_dirs, split, cache, progress, **observe)
+    repeat = train.handheld_repeat if augment else None
+    return ObservedProfiles(data_dirs, split, cache, progress, handheld, repeat, **observe)

@@ -1,0 +1,191 @@
+"""Training samples for the profile network from hand-held captures drawn the bench's way
+(`spare-twin dataset --handheld`, docs/nets.md).
+
+The rig's views made to look hand-held (`nets.profile_samples.CaptureAugment`) are not what a real
+sweep gives `predict`: a sweep of 15-60 frames at 640 x 480 or 848 x 480, registered (or tracked)
+and brought into register on the object, every effect of a print and an active sensor in it. On the
+bench's development captures the network trained on those alone counted 0.77 right (240 captures,
+seeds 20000-20023 and 30006-30221), the measurement 0.96. Here each sample is such a capture: drawn exactly as the
+bench draws its `real` side (`bench.capture.draw_real`, every effect on), observed as `predict`
+observes it (`observe.views.recording_views`, `measure.chain.measure_views`), and kept as the profile
+image the network reads with the truth as its labels. The capture itself is deleted once observed
+(about 8 MB each); a capture on whose points `predict` finds no chain gives no sample (counted as
+rejected).
+
+Seeds: object i of `--seed S` is drawn with the bench's settings table (`bench.settings.capture_settings`)
+from chain seed `HANDHELD_SEED_BASE + S * SEED_STRIDE + i`: never one of the bench's ranges (all below
+1,000,000), so no held-out capture is ever trained on. Every `VAL_EVERY`-th object is validation.
+
+Labels: the count, the 7-slot nominal lengths (paper units: the print's scale error is not in them, as
+`predict` is scored on nominal lengths) and the held pose's joint angles in the profile frame's sign:
+the profile turns its frame so that a chain's links sit at larger layers than the base, which is the
+object's own sign (`observe.profile`); where the measured angles tell the opposite sign, theirs is taken.
+
+The folder is resumable and extendable: one sample file per object (`objects/<name>.npz`, written
+whole), so an interrupted run goes on where it stopped and a larger `--instances` draws only the new
+objects; `samples.npz` and `manifest.json` are written last. The same seed gives the same bytes.
+"""
+
+from __future__ import annotations
+
+import shutil
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from spare_twin.bench import capture
+from spare_twin.bench.settings import BenchConfig, CaptureSettings, capture_settings
+from spare_twin.config import MAX_MOVING_LINKS, ChainSpec
+from spare_twin.dataset.backends import start_pool
+from spare_twin.errors import SpareTwinError
+from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
+from spare_twin.measure.chain import measure_views
+from spare_twin.nets.profile_train import HANDHELD_FORMAT, HANDHELD_KIND, SPLIT_CODES
+from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
+from spare_twin.observe.views import recording_views
+from spare_twin.output import writing
+from spare_twin.predict.abstain import MIN_ARC_DEG
+from spare_twin.recording import Recording, npz_bytes
+from spare_twin.validate import check_count, check_whole
+
+#: Chain seeds of the training captures start here, far above every bench range (< 1,000,000).
+HANDHELD_SEED_BASE = 1_000_000_000
+#: Seeds per `--seed`: dataset S draws its objects from base + S * SEED_STRIDE on.
+SEED_STRIDE = 1_000_000
+#: The largest dataset seed (its objects' chain seeds stay below 2,000,000,000).
+MAX_SEED = 999
+#: Object i is a validation sample where i % VAL_EVERY == VAL_EVERY - 1.
+VAL_EVERY = 10
+
+
+@dataclass(frozen=True)
+class HandheldConfig:
+    """What `spare-twin dataset --handheld` draws."""
+
+    objects: int
+    """Captures drawn (object i has n = i % 6 + 1 moving links)."""
+    seed: int = 0
+    """Dataset seed: object i is chain seed HANDHELD_SEED_BASE + seed * SEED_STRIDE + i."""
+    renderers: tuple[str, ...] = ("pybullet", "raycast")
+    """Renderers of the captures, as the bench alternates them."""
+
+    def bench_config(self) -> BenchConfig:
+        check_count("instances", self.objects, SEED_STRIDE, "the seeds of one dataset seed")
+        check_count("seed", self.seed, MAX_SEED, "the seeds kept for training captures", lower=0)
+        first = HANDHELD_SEED_BASE + self.seed * SEED_STRIDE
+        return BenchConfig(objects=self.objects, seed=first, renderers=self.renderers)
+
+
+def split_of(index: int) -> str:
+    return "val" if index % VAL_EVERY == VAL_EVERY - 1 else "train"
+
+
+def _labels(d: Path, measured_angles) -> dict[str, np.ndarray]:
+    spec = ChainSpec.from_json_file(d / "object" / "object.json")
+    held = np.asarray(Recording.open(d / "sensor").ground_truth()["joint_angles_rad"], np.float64)[0]
+    sign = 1.0
+    if measured_angles is not None and len(measured_angles) == spec.n_links:
+        sign = -1.0 if float(np.dot(measured_angles, held)) < 0 else 1.0
+    angles = np.zeros(MAX_MOVING_LINKS, np.float32)
+    angles[: spec.n_links] = sign * held
+    return {
+        "n": np.array(spec.n_links, np.int64),
+        "lengths": spec.label_lengths().astype(np.float32),
+        "angles": angles,
+    }
+
+
+def draw_sample(d: Path, c: CaptureSettings, cfg: BenchConfig) -> dict[str, np.ndarray]:
+    """One object's capture drawn into `d`, observed as `predict` observes it, and deleted: its sample
+    (`x` the profile image, float16; labels), or only `rejected` where no chain was found."""
+    obj = capture.build(d, c)
+    capture.draw_real(obj, d, c, cfg.effects)
+    obs, m = measure_views(recording_views(Recording.open(d / "real")), DEFAULT_PRINT_SCALE, min_arc_deg=MIN_ARC_DEG)
+    if obs.reason is not None:
+        return {"rejected": np.array(True)}
+    sample = {"x": obs.profile.image.astype(np.float16), "rejected": np.array(False)}
+    sample.update(_labels(d, None if m.angles_rad is None else np.asarray(m.angles_rad)))
+    return sample
+
+
+def _object_job(args: tuple) -> str:
+    root, c, cfg = args
+    out = root / "objects" / f"{c.name}.npz"
+    scratch = root / "scratch" / c.name
+    try:
+        sample = draw_sample(scratch, c, cfg)
+        sample["settings"] = np.frombuffer(repr(c.to_json()).encode(), np.uint8)
+        write_bytes_atomic(out, npz_bytes(sample))
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    return c.name
+
+
+def _done(path: Path, c: CaptureSettings) -> bool:
+    """Whether `path` holds this object's sample (an earlier run's, with the same settings)."""
+    if not path.is_file():
+        return False
+    try:
+        with np.load(path) as z:
+            return bytes(z["settings"]) == repr(c.to_json()).encode()
+    except (OSError, ValueError, KeyError):
+        return False
+
+
+def _assemble(root: Path, rows: list[CaptureSettings]) -> dict:
+    arrays: dict[str, list] = {"x": [], "n": [], "lengths": [], "angles": [], "split": []}
+    rejected = {"train": 0, "val": 0}
+    for i, c in enumerate(rows):
+        with np.load(root / "objects" / f"{c.name}.npz") as z:
+            if bool(z["rejected"]):
+                rejected[split_of(i)] += 1
+                continue
+            for k in ("x", "n", "lengths", "angles"):
+                arrays[k].append(z[k])
+        arrays["split"].append(SPLIT_CODES[split_of(i)])
+    if not arrays["n"]:
+        raise SpareTwinError("--handheld: predict found no chain in any capture drawn")
+    stacked = {k: np.stack(v) if k != "split" else np.array(v, np.uint8) for k, v in arrays.items()}
+    write_bytes_atomic(root / "samples.npz", npz_bytes(stacked))
+    counts = {s: int((stacked["split"] == code).sum()) for s, code in SPLIT_CODES.items()}
+    return {"samples": counts, "rejected": rejected}
+
+
+def handheld_dataset(out: str | Path, hc: HandheldConfig, workers: int = 1, progress: bool = True, force: bool = False):
+    """Draw (or resume, or extend) the hand-held sample folder `out` (module doc); returns its manifest."""
+    cfg = hc.bench_config()
+    check_whole("workers", workers, least=1)
+    rows = capture_settings(cfg)
+    with writing(out, HANDHELD_KIND, (), force, resumable=True) as tmp:
+        (tmp / "objects").mkdir(exist_ok=True)
+        earlier = read_json(tmp / "manifest.json").get("seed") if (tmp / "manifest.json").is_file() else hc.seed
+        if earlier != hc.seed:
+            raise SpareTwinError(f"out {out}: holds hand-held samples of seed {earlier}, not {hc.seed}")
+        todo = [(tmp, c, cfg) for c in rows if not _done(tmp / "objects" / f"{c.name}.npz", c)]
+        bar = dict(total=len(rows), initial=len(rows) - len(todo), desc="hand-held", unit="capture", file=sys.stderr)
+        with tqdm(disable=not progress, **bar) as pbar:
+            if workers > 1 and len(todo) > 1:
+                with start_pool(min(workers, len(todo))) as pool:
+                    for _ in pool.imap_unordered(_object_job, todo):
+                        pbar.update()
+            else:
+                for job in todo:
+                    _object_job(job)
+                    pbar.update()
+        shutil.rmtree(tmp / "scratch", ignore_errors=True)
+        manifest = {
+            "format": HANDHELD_FORMAT,
+            "kind": HANDHELD_KIND,
+            "seed": hc.seed,
+            "objects": hc.objects,
+            "first_chain_seed": cfg.seed,
+            "renderers": list(hc.renderers),
+            "bench": cfg.to_json(),
+            **_assemble(tmp, rows),
+            "file": "samples.npz",
+        }
+        write_json_atomic(tmp / "manifest.json", manifest)
+    return manifest
