@@ -11,7 +11,7 @@ import pytest
 import torch
 from conftest import run_cli
 
-from spare_twin.bench.handheld_samples import HANDHELD_SEED_BASE, HandheldConfig, handheld_dataset
+from spare_twin.bench.handheld_samples import HANDHELD_SEED_BASE, SETTINGS_BLOCK, HandheldConfig, handheld_dataset
 from spare_twin.config import sample_chain
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_json_atomic
@@ -123,10 +123,15 @@ def test_a_short_training_run_on_handheld_samples_learns(tmp_path, capsys):
     assert str(hh) in card
 
 
-def test_handheld_config_is_checked():
+def test_handheld_config_is_checked_and_its_captures_do_not_depend_on_the_count():
     with pytest.raises(SpareTwinError, match="instances 0"):
         HandheldConfig(objects=0).bench_config()
     assert HandheldConfig(objects=3, seed=2).bench_config().seed == HANDHELD_SEED_BASE + 2_000_000
+    # a larger --instances extends the folder: the first objects' captures stay what they were
+    many = HandheldConfig(objects=SETTINGS_BLOCK + 5).settings()
+    assert HandheldConfig(objects=3).settings() == many[:3]
+    assert [c.seed - HANDHELD_SEED_BASE for c in many[-2:]] == [SETTINGS_BLOCK + 3, SETTINGS_BLOCK + 4]
+    assert len({c.frames for c in many[:SETTINGS_BLOCK]}) > 40  # each block spreads its settings
 
 
 def test_handheld_samples_follow_the_rig_samples_in_a_training_split(tmp_path):

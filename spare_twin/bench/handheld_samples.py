@@ -12,9 +12,11 @@ image the network reads with the truth as its labels. The capture itself is dele
 (about 8 MB each); a capture on whose points `predict` finds no chain gives no sample (counted as
 rejected).
 
-Seeds: object i of `--seed S` is drawn with the bench's settings table (`bench.settings.capture_settings`)
-from chain seed `HANDHELD_SEED_BASE + S * SEED_STRIDE + i`: never one of the bench's ranges (all below
-1,000,000), so no held-out capture is ever trained on. Every `VAL_EVERY`-th object is validation.
+Seeds: object i of `--seed S` is chain seed `HANDHELD_SEED_BASE + S * SEED_STRIDE + i`, never one of the
+bench's ranges (all below 1,000,000), so no held-out capture is ever trained on. Its capture settings
+are row i of the bench's settings table (`bench.settings.capture_settings`) drawn for blocks of
+`SETTINGS_BLOCK` objects, so they do not depend on how many objects are asked for. Every
+`VAL_EVERY`-th object is validation.
 
 Labels: the count, the 7-slot nominal lengths (paper units: the print's scale error is not in them, as
 `predict` is scored on nominal lengths) and the held pose's joint angles in the profile frame's sign:
@@ -55,6 +57,10 @@ from spare_twin.validate import check_count, check_whole
 HANDHELD_SEED_BASE = 1_000_000_000
 #: Seeds per `--seed`: dataset S draws its objects from base + S * SEED_STRIDE on.
 SEED_STRIDE = 1_000_000
+#: Objects are drawn in blocks of this many, each with the bench's settings table for a block of this
+#: size (`capture_settings` spreads each setting over the objects it is asked for): an object's capture
+#: does not depend on `--instances`, so a larger count extends the folder and a smaller one is a prefix.
+SETTINGS_BLOCK = 600
 #: The largest dataset seed (its objects' chain seeds stay below 2,000,000,000).
 MAX_SEED = 999
 #: Object i is a validation sample where i % VAL_EVERY == VAL_EVERY - 1.
@@ -72,11 +78,18 @@ class HandheldConfig:
     renderers: tuple[str, ...] = ("pybullet", "raycast")
     """Renderers of the captures, as the bench alternates them."""
 
-    def bench_config(self) -> BenchConfig:
+    def bench_config(self, block: int = 0) -> BenchConfig:
+        """The bench configuration of settings block `block` (objects block * SETTINGS_BLOCK on)."""
         check_count("instances", self.objects, SEED_STRIDE, "the seeds of one dataset seed")
         check_count("seed", self.seed, MAX_SEED, "the seeds kept for training captures", lower=0)
-        first = HANDHELD_SEED_BASE + self.seed * SEED_STRIDE
-        return BenchConfig(objects=self.objects, seed=first, renderers=self.renderers)
+        first = HANDHELD_SEED_BASE + self.seed * SEED_STRIDE + block * SETTINGS_BLOCK
+        return BenchConfig(objects=SETTINGS_BLOCK, seed=first, renderers=self.renderers)
+
+    def settings(self) -> list[CaptureSettings]:
+        """Object i's capture settings for i < `objects`: row i % SETTINGS_BLOCK of block i // SETTINGS_BLOCK."""
+        blocks = -(-self.objects // SETTINGS_BLOCK)
+        rows = [c for b in range(blocks) for c in capture_settings(self.bench_config(b))]
+        return rows[: self.objects]
 
 
 def split_of(index: int) -> str:
@@ -158,7 +171,7 @@ def handheld_dataset(out: str | Path, hc: HandheldConfig, workers: int = 1, prog
     """Draw (or resume, or extend) the hand-held sample folder `out` (module doc); returns its manifest."""
     cfg = hc.bench_config()
     check_whole("workers", workers, least=1)
-    rows = capture_settings(cfg)
+    rows = hc.settings()
     with writing(out, HANDHELD_KIND, (), force, resumable=True) as tmp:
         (tmp / "objects").mkdir(exist_ok=True)
         earlier = read_json(tmp / "manifest.json").get("seed") if (tmp / "manifest.json").is_file() else hc.seed
@@ -183,6 +196,7 @@ def handheld_dataset(out: str | Path, hc: HandheldConfig, workers: int = 1, prog
             "objects": hc.objects,
             "first_chain_seed": cfg.seed,
             "renderers": list(hc.renderers),
+            "settings_block": SETTINGS_BLOCK,
             "bench": cfg.to_json(),
             **_assemble(tmp, rows),
             "file": "samples.npz",
