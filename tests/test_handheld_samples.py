@@ -53,6 +53,7 @@ def test_the_handheld_folder_resumes_and_refuses_another_seed(one_capture):
     with pytest.raises(SpareTwinError, match="holds hand-held samples of seed 0, not 1"):
         handheld_dataset(out, HandheldConfig(objects=1, seed=1), progress=False)
     assert before == (sample.stat().st_mtime_ns, (out / "samples.npz").read_bytes())
+    assert sorted(p.name for p in out.parent.iterdir()) == ["hh"]  # no partial copy left beside it
 
 
 def test_handheld_flags_are_checked_before_anything_is_written(tmp_path, capsys):

@@ -172,11 +172,11 @@ def handheld_dataset(out: str | Path, hc: HandheldConfig, workers: int = 1, prog
     cfg = hc.bench_config()
     check_whole("workers", workers, least=1)
     rows = hc.settings()
+    earlier = Path(out) / "manifest.json"  # refused before `writing` starts a partial copy of it
+    if not force and earlier.is_file() and (seed := read_json(earlier).get("seed")) != hc.seed:
+        raise SpareTwinError(f"out {out}: holds hand-held samples of seed {seed}, not {hc.seed}")
     with writing(out, HANDHELD_KIND, (), force, resumable=True) as tmp:
         (tmp / "objects").mkdir(exist_ok=True)
-        earlier = read_json(tmp / "manifest.json").get("seed") if (tmp / "manifest.json").is_file() else hc.seed
-        if earlier != hc.seed:
-            raise SpareTwinError(f"out {out}: holds hand-held samples of seed {earlier}, not {hc.seed}")
         todo = [(tmp, c, cfg) for c in rows if not _done(tmp / "objects" / f"{c.name}.npz", c)]
         bar = dict(total=len(rows), initial=len(rows) - len(todo), desc="hand-held", unit="capture", file=sys.stderr)
         with tqdm(disable=not progress, **bar) as pbar:
