@@ -205,8 +205,8 @@ class TrainConfig:
     """Sim-to-real: and shifted along the table by this std per axis (its base error)."""
     handheld_repeat: int = 1
     """Profile network: each training sample of a hand-held sample folder (`spare-twin dataset
-    --handheld`) is in the training split this many times (a few hundred captures beside tens of
-    thousands of rig samples)."""
+    --handheld`) and its mirror image are in the training split this many times each (a few hundred
+    captures beside tens of thousands of rig samples)."""
     init_from: str | None = None
     """Fine-tune: start from this checkpoint's weights (same network configuration) instead of random ones."""
     workers: int = 0
