@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from plate_chain import HALF_WIDTH_M, Plate, chain_faces
 from scipy.spatial import cKDTree
 
 from spare_twin.measure.layers import (
@@ -82,43 +83,31 @@ def test_a_flying_pixel_streak_behind_a_thin_link_is_removed_and_the_link_kept(p
     assert kept.mean() > 0.9, kept.mean()
 
 
-def _plate(joint, direction, length, centre_t, tilt_rad, spacing=0.0015, rng=None):
-    """(points (N, 3) s, t, z and view directions (N, 3)) of a plate's two faces, 12 mm wide, 6 mm
-    thick, from `joint` along the in-plane unit `direction`, its centre at t = centre_t at the joint
-    and leaning `tilt_rad` out of the plane about the joint (t grows with the distance along)."""
-    across = np.array([direction[1], -direction[0]])
-    u, w = np.meshgrid(np.arange(0.0, length, spacing), np.arange(-0.006, 0.006 + 1e-9, spacing))
-    sz = joint + u.reshape(-1, 1) * direction + w.reshape(-1, 1) * across
-    t_centre = centre_t + np.sin(tilt_rad) * u.reshape(-1)
-    pts, dirs = [], []
-    for side in (1.0, -1.0):
-        t = t_centre + side * 0.003
-        pts.append(np.stack([sz[:, 0], t, sz[:, 1]], 1))
-        dirs.append(np.tile([0.0, side, 0.0], (len(t), 1)))
-    p = np.concatenate(pts)
-    if rng is not None:
-        p = p + rng.normal(0.0, 0.0005, p.shape)
-    return p, np.concatenate(dirs)
+def _plate(joint, direction, length, centre_t, tilt_rad, last=False) -> Plate:
+    """A plate from `joint` along the in-plane unit `direction` to the next joint `length` on (a last
+    link's centre line ends half a width before its tip), its centre at t = centre_t at the joint and
+    leaning `tilt_rad` out of the plane about the joint (t grows with the distance along)."""
+    return Plate(joint, joint + direction * (length - (HALF_WIDTH_M if last else 0.0)), centre_t, tilt_rad)
+
+
+def _faces(plates, seed):
+    """The plates' visible faces (`plate_chain.chain_faces`) every 1.5 mm, with 0.5 mm of noise."""
+    return chain_faces(plates, 0.0015, np.random.default_rng(seed), 0.0005)
 
 
 def _tilted_chain(lengths_m, angles_deg, tilts_deg, slide_mm=0.0, seed=0):
     """A chain's points in the profile frame: base link up the z axis from the table, link k in layer
     k (6.4 mm pitch) but for `slide_mm` along its pin (the axial play), each leaning out of its layer
     by its tilt."""
-    rng = np.random.default_rng(seed)
-    pts, dirs = [], []
-    p, d = _plate(np.array([0.0, 0.0]), np.array([0.0, 1.0]), lengths_m[0], 0.0, 0.0, rng=rng)
-    pts.append(p)
-    dirs.append(d)
+    plates = [_plate(np.array([0.0, 0.0]), np.array([0.0, 1.0]), lengths_m[0], 0.0, 0.0)]
     joint, phi = np.array([0.0, lengths_m[0]]), 0.0
     for k, (length, angle, tilt) in enumerate(zip(lengths_m[1:], angles_deg, tilts_deg), start=1):
         phi += np.radians(angle)
         direction = np.array([np.sin(phi), np.cos(phi)])
-        p, d = _plate(joint, direction, length, 0.0064 * k + slide_mm / 1000, np.radians(tilt), rng=rng)
-        pts.append(p)
-        dirs.append(d)
+        last = k == len(lengths_m) - 1
+        plates.append(_plate(joint, direction, length, 0.0064 * k + slide_mm / 1000, np.radians(tilt), last))
         joint = joint + length * direction
-    return np.concatenate(pts), np.concatenate(dirs)
+    return _faces(plates, seed)
 
 
 @pytest.mark.parametrize(
@@ -143,18 +132,14 @@ def _leaning_chain(lengths_m, angles_deg, leans_deg, seed=0):
     """A chain whose joints' play adds up: link k leans by the sum of leans 1..k (each link carries its
     parent's lean on) and starts one layer past its parent's plate where that one ends, so its plate
     lies millimetres off k layer pitches and slants across them."""
-    rng = np.random.default_rng(seed)
-    p, d = _plate(np.array([0.0, 0.0]), np.array([0.0, 1.0]), lengths_m[0], 0.0, 0.0, rng=rng)
-    pts, dirs = [p], [d]
+    plates = [_plate(np.array([0.0, 0.0]), np.array([0.0, 1.0]), lengths_m[0], 0.0, 0.0)]
     joint, phi, lean, t_joint = np.array([0.0, lengths_m[0]]), 0.0, 0.0, 0.0
-    for length, angle, step in zip(lengths_m[1:], angles_deg, leans_deg):
+    for k, (length, angle, step) in enumerate(zip(lengths_m[1:], angles_deg, leans_deg), start=1):
         phi, lean, t_joint = phi + np.radians(angle), lean + np.radians(step), t_joint + 0.0064
         direction = np.array([np.sin(phi), np.cos(phi)])
-        p, d = _plate(joint, direction, length, t_joint, lean, rng=rng)
-        pts.append(p)
-        dirs.append(d)
+        plates.append(_plate(joint, direction, length, t_joint, lean, k == len(lengths_m) - 1))
         joint, t_joint = joint + length * direction, t_joint + np.sin(lean) * length
-    return np.concatenate(pts), np.concatenate(dirs)
+    return _faces(plates, seed)
 
 
 def test_links_leaning_off_one_comb_are_counted_plate_by_plate():

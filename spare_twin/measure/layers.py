@@ -27,10 +27,14 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    trap the fit. A weak pull on the two free ends (the base's top, the last link's tip) keeps the
    shortest chain that holds the points, where the coverage tolerance alone let them drift out.
    The fit, its starts and its residuals' Jacobian (in closed form) are `measure.fit`.
-4. **no link**: a top layer that is its parent's points read a layer up (`_top_layer_is_stray`), a
-   layer that is the far end of its parent's plate cut off by the joint's lean (`_cut_plate`: where
-   they meet, the plate centres step by a fraction of a layer, not a joint's whole layer) and a link
-   between joints too short to print (`_unprintable_link`) are merged into the layer below.
+4. **no link, or a link more**: a top layer that is its parent's points read a layer up
+   (`_top_layer_is_stray`), a layer that is the far end of its parent's plate cut off by the joint's
+   lean (`_is_cut`) and a link between joints too short to print (`_unprintable_link`) are merged into
+   the layer below. Where the chain was seen from both sides of its plane, a joint is told by its
+   thickness (`measure.joints`: at a pin two plates overlap, a layer thicker than one plate; a cut
+   plate is one plate thick there), and a layer as thick as a joint somewhere along it holds two
+   links and is split there first; elsewhere a cut plate is told by its plate centres' step where
+   the two layers meet (`_cut_plate`: a fraction of a layer, not a joint's whole layer).
 5. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
    to measure, and the measurement says why (a capture blurred by views out of register).
 
@@ -49,6 +53,13 @@ from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
 from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments
+from spare_twin.measure.joints import (
+    MIN_JOINT_EXCESS_LAYERS,
+    Thickness,
+    chain_sides,
+    hidden_joint,
+    joint_excess_layers,
+)
 from spare_twin.measure.plates import local_comb_layers
 from spare_twin.observe.points import ObjectPoints
 from spare_twin.observe.profile import ChainProfile, parts_geometry_m
@@ -135,6 +146,9 @@ class LayersConfig:
     directions: int = 72
     """Link directions tried by the fit's second start (`_initial_sequential`)."""
     max_points: int = 1500
+    joint_thickness: bool = True
+    """Where the chain was seen from both sides of its plane, read its joints from how thick it stands
+    there (`measure.joints`: a pin's overlap is two plates thick) before the plate centres' step."""
 
     @classmethod
     def for_parts(cls, parts: PartDims, **settings) -> LayersConfig:
@@ -299,10 +313,15 @@ def measure_layers(
     if len(p) < cfg.min_layer_points:
         return LayerMeasurement(None, None, None, ())
     readings = layer_readings(p[:, 0], p[:, 1], p[:, 2], None if view_dirs is None else v[:, 1], cfg)
-    as_designed = _measure_reading(p, *readings[0], print_scale, cfg)
+    thickness = None
+    if view_dirs is not None and cfg.joint_thickness:
+        thickness = Thickness(p[:, [0, 2]], p[:, 1], chain_sides(v[:, 1], cfg.min_side_cosine), cfg.layer_pitch_m)
+        if not thickness.holds(2 * cfg.half_thickness_m):
+            thickness = None
+    as_designed = _measure_reading(p, *readings[0], print_scale, cfg, thickness)
     if len(readings) == 1 or np.array_equal(readings[1][0], readings[0][0]):  # the rig: one reading
         return as_designed
-    followed = _measure_reading(p, *readings[1], print_scale, cfg)
+    followed = _measure_reading(p, *readings[1], print_scale, cfg, thickness)
     if followed.n_links is None or followed.n_links == as_designed.n_links:
         return as_designed
     if as_designed.n_links is None:
@@ -363,25 +382,52 @@ def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int
 
 
 def _measure_reading(
-    p: np.ndarray, labels: np.ndarray, centre_layers: np.ndarray, print_scale: float, cfg: LayersConfig
+    p: np.ndarray,
+    labels: np.ndarray,
+    centre_layers: np.ndarray,
+    print_scale: float,
+    cfg: LayersConfig,
+    thickness: Thickness | None = None,
 ) -> LayerMeasurement:
     """The chain of points `p` (s, t, z) with one reading of their layers: counted, fitted and
     checked (a top layer that is no link, a plate cut in two by its lean, a link too short to
-    print), or why it is no chain."""
+    print, and where `thickness` sees them, joints no thicker than a plate and a plate as thick as a
+    joint: `measure.joints`), or why it is no chain."""
     n, per_layer = count_links(labels, cfg)
     if n is None:
         return LayerMeasurement(None, None, None, per_layer)
+    split_before: set[bytes] = set()
     while True:
         labels_n = np.clip(labels, 0, n)
         layers = [p[labels_n == k][:, [0, 2]] for k in range(n + 1)]
         x, rms = fit_layers(layers, n, cfg)
         centres = [centre_layers[labels_n == k] for k in range(n + 1)]
-        if n > 1 and (_top_layer_is_stray(x, layers, centres[n], n, cfg) or _cut_plate(layers, centres, n)):
+        starts, _ = plate_segments(x, n, cfg)
+        # a layer as thick as a joint somewhere along it holds two links: split it first, as a plate
+        # fitted to two links puts the joints after it where they are not
+        split = None
+        if thickness is not None and n < MAX_MOVING_LINKS and len(split_before) < MAX_MOVING_LINKS:
+            split = hidden_joint(thickness, layers, starts)
+        if split is not None:
+            j, at = split  # its points beyond the pin, and every layer above, move up one
+            above = (labels > j) | ((labels_n == j) & ((p[:, [0, 2]] - at) @ (at - starts[j]) > 0))
+            split_labels = np.where(above, labels + 1, labels)
+            if split_labels.tobytes() not in split_before:  # else split there and merged back since
+                split_before.add(split_labels.tobytes())
+                labels, centre_layers = split_labels, np.where(above, centre_layers + 1, centre_layers)
+                per_layer = count_links(labels, cfg)[1]
+                n += 1
+                continue
+        excess = np.full(n, np.nan) if thickness is None else joint_excess_layers(thickness, starts)
+        if n > 1 and (_top_layer_is_stray(x, layers, centres[n], n, cfg) or _is_cut(layers, centres, excess, n)):
             n -= 1
+            labels = np.minimum(labels, n)  # as the fit reads them: a later split renumbers what is there
             continue
         # the top layer settled first: a tilted plate cut in two lower down reads as a link of its own,
         # often one too short to print
-        cut = _unprintable_link(x, n, cfg) or next((k for k in range(2, n) if _cut_plate(layers, centres, k)), None)
+        cut = _unprintable_link(x, n, cfg) or next(
+            (k for k in range(2, n) if _is_cut(layers, centres, excess, k)), None
+        )
         if cut is None:
             break
         above = labels >= cut  # its layer joins its parent's, and every layer above moves down one
@@ -430,6 +476,15 @@ def _top_layer_is_stray(
 #: by less than this many layers run on from the parent's: one plate tilted out of its layer.
 MAX_TILT_STEP_LAYERS = 0.35
 TILT_CONTACT_M = 0.009
+
+
+def _is_cut(layers: list[np.ndarray], centres: list[np.ndarray], joint_excess: np.ndarray, k: int) -> bool:
+    """Whether layer k is its parent's plate cut in two, not a link: where joint k was seen from both
+    sides, by its thickness (`measure.joints`: a pin's overlap is a layer thicker than a plate, a cut
+    none), elsewhere by the plate centres' step where the two layers meet (`_cut_plate`)."""
+    if np.isfinite(joint_excess[k - 1]):
+        return bool(joint_excess[k - 1] < MIN_JOINT_EXCESS_LAYERS)
+    return _cut_plate(layers, centres, k)
 
 
 def _cut_plate(layers: list[np.ndarray], centres: list[np.ndarray], k: int) -> bool:
