@@ -10,6 +10,6 @@ so importing this package and `spare-twin --help` stay instant.
 
 from spare_twin.errors import SpareTwinError
 
-__version__ = "0.6.9"
+__version__ = "0.6.10"
 
 __all__ = ["SpareTwinError", "__version__"]

@@ -145,15 +145,19 @@ def _leaning_chain(lengths_m, angles_deg, leans_deg, seed=0):
 def test_links_leaning_off_one_comb_are_counted_plate_by_plate():
     """Five links each leaning 2-3 deg further the same way: their plates end up 0.6-0.8 of a pitch
     apart on average, off any single comb (bench seed 30052: five links read as three). The comb
-    followed along the chain counts them; one comb for the whole chain does not."""
+    followed along the chain counts them; one comb for the whole chain does not, unless the joints'
+    thickness reads them."""
     lengths_m = (0.07, 0.045, 0.04, 0.04, 0.04, 0.035)
     angles_deg, leans_deg = (60.0, 30.0, 20.0, -40.0, 30.0), (-3.0, -2.0, -3.0, -2.0, -2.0)
     points, dirs = _leaning_chain(lengths_m, angles_deg, leans_deg)
     m = measure_layers(points, PRINT_SCALE, True, LayersConfig(), dirs)
     assert m.n_links == 5, m.points_per_layer
     assert np.allclose(m.lengths_pu, np.asarray(lengths_m) / PRINT_SCALE, atol=0.003 / PRINT_SCALE), m.lengths_pu
+    one_comb = LayersConfig(follow_comb=False, joint_thickness=False)
+    assert measure_layers(points, PRINT_SCALE, True, one_comb, dirs).n_links != 5
+    # seen from both sides, the joints' thickness mends the one comb's reading too (`measure.joints`)
     one_comb = measure_layers(points, PRINT_SCALE, True, LayersConfig(follow_comb=False), dirs)
-    assert one_comb.n_links != 5, one_comb.points_per_layer
+    assert one_comb.n_links == 5, one_comb.points_per_layer
 
 
 def test_a_long_middle_link_cut_in_two_by_its_lean_is_one_link():

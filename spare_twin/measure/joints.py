@@ -34,6 +34,9 @@ MIN_JOINT_EXCESS_LAYERS = 0.5
 #: than this from every other layer's points and from its own joint (their overlaps are two plates thick).
 MAX_SCAN_PLACES = 150
 SCAN_CLEARANCE_M = 0.010
+#: ... and found where at least this many of those places within `THICKNESS_RADIUS_M` of each other
+#: stand as thick as a joint.
+MIN_THICK_PLACES = 3
 
 
 def chain_sides(view_t: np.ndarray | None, min_cosine: float) -> np.ndarray:
@@ -107,7 +110,13 @@ def hidden_joint(thickness: Thickness, layers: list[np.ndarray], starts: np.ndar
         for k, other in enumerate(layers):
             if k != j and len(other) and len(places):
                 places = places[cKDTree(other).query(places)[0] > SCAN_CLEARANCE_M]
-        excess = thickness.excess_layers(places)
-        if np.isfinite(excess).any() and np.nanmax(excess) > MIN_JOINT_EXCESS_LAYERS:
-            return j, places[int(np.nanargmax(excess))]
+        thick = places[thickness.excess_layers(places) > MIN_JOINT_EXCESS_LAYERS]
+        if len(thick) < MIN_THICK_PLACES:
+            continue
+        # a pin's overlap is a disc of the plates' width: thick at several places around it, where
+        # noise makes a single place thick
+        around = cKDTree(thick).query_ball_point(thick, THICKNESS_RADIUS_M, return_length=True)
+        if around.max() >= MIN_THICK_PLACES:
+            centre = thick[int(np.argmax(around))]
+            return j, np.median(thick[np.linalg.norm(thick - centre, axis=1) <= THICKNESS_RADIUS_M], axis=0)
     return None
