@@ -7,11 +7,11 @@ far joint play leans either link about the pin, so it tells a joint from a plate
 two (which `measure.layers` reads from plate centres, where a lean shifts them by a fraction of a
 layer), and it finds a joint where the layers' rounding ran two links into one.
 
-On 15 development captures drawn the bench's way (dataset seeds 1,001,000,000 on) the joints of the
-chains counted right stood 9.1-13.1 mm thick, the plates between them 3.8-7.1 mm.
+On 15 development captures drawn the bench's way (chain seeds 1,001,000,000 on) the joints of the
+chains counted right stood 9.1-13.1 mm thick, the plates between them 3.8-7.1 mm (docs/observe.md).
 
 Only where the chain was seen from both sides of its plane: elsewhere a joint shows no thickness and
-`thickness_excess_layers` says nothing (NaN).
+`Thickness.excess_layers` says nothing (NaN).
 """
 
 from __future__ import annotations
@@ -39,10 +39,9 @@ SCAN_CLEARANCE_M = 0.010
 MIN_THICK_PLACES = 3
 
 
-def chain_sides(view_t: np.ndarray | None, min_cosine: float) -> np.ndarray:
-    """(N,) +1 / -1 for points seen squarely from the +t / -t side of the plane, 0 edge-on or unknown."""
-    if view_t is None:
-        return np.zeros(0, np.int64)
+def chain_sides(view_t: np.ndarray, min_cosine: float) -> np.ndarray:
+    """(N,) +1 / -1 for points seen squarely from the +t / -t side of the plane (the t component of
+    the unit direction to their cameras beyond `min_cosine`), 0 edge-on."""
     return np.where(view_t > min_cosine, 1, np.where(view_t < -min_cosine, -1, 0))
 
 
