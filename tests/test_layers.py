@@ -12,7 +12,8 @@ from plate_chain import Plate, chain_faces
 from scipy.spatial import cKDTree
 
 from spare_twin.measure import fit
-from spare_twin.measure.layers import LayersConfig, grouped_medians, measure_layers, measure_profile
+from spare_twin.measure.layers import LayersConfig, measure_layers, measure_profile
+from spare_twin.measure.medians import grouped_medians
 from spare_twin.observe.chain import find_chain
 from spare_twin.observe.points import PosedView, object_points
 from spare_twin.observe.views import observe_chain

@@ -19,6 +19,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from spare_twin.measure.medians import grouped_medians
+
 #: Points within this of a place (in the plane) say how thick the chain is there.
 THICKNESS_RADIUS_M = 0.005
 #: ... from at least this many points on each side of the plane.
@@ -68,8 +70,11 @@ class Thickness:
         medians = []
         for tree, t in self.sides:
             near = tree.query_ball_point(places_sz_m, THICKNESS_RADIUS_M)
-            medians.append([np.median(t[i]) if len(i) >= MIN_SIDE_POINTS else np.nan for i in near])
-        return np.asarray(medians[0]) - np.asarray(medians[1])
+            seen = np.flatnonzero(np.fromiter(map(len, near), np.int64, len(near)) >= MIN_SIDE_POINTS)
+            side = np.full(len(places_sz_m), np.nan)
+            side[seen] = grouped_medians(t, [near[i] for i in seen])
+            medians.append(side)
+        return medians[0] - medians[1]
 
     def excess_layers(self, places_sz_m: np.ndarray) -> np.ndarray:
         """(K,) how much thicker than one plate (in layer pitches) the chain is at K places: about 1 at

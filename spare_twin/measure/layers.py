@@ -43,7 +43,6 @@ Deterministic: medians, sorted KD-tree queries and scipy's least squares with fi
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +59,7 @@ from spare_twin.measure.joints import (
     hidden_joint,
     joint_excess_layers,
 )
+from spare_twin.measure.medians import grouped_medians
 from spare_twin.measure.plates import local_comb_layers
 from spare_twin.observe.points import ObjectPoints
 from spare_twin.observe.profile import ChainProfile, parts_geometry_m
@@ -237,20 +237,6 @@ def _layer_shear(s_m: np.ndarray, t_m: np.ndarray, cfg: LayersConfig) -> float:
     phases = np.exp(1j * wave * t_m)
     coherence = np.abs(np.exp(-1j * wave * np.outer(shears, s_m)) @ phases) / max(len(t_m), 1)
     return float(shears[int(np.argmax(coherence - cfg.shear_prior * np.abs(shears)))])
-
-
-def grouped_medians(values: np.ndarray, groups) -> np.ndarray:
-    """(G,) `np.median(values[g])` of each of G non-empty index lists, to the bit (each group's middle
-    value after sorting, or the mean of its middle two), all at once: with one `np.median` per point
-    the labels took 40 ms of a sample's CPU (as long as the chain fit, its Jacobian in closed form), 13 now."""
-    if len(groups) == 0:
-        return np.zeros(0)
-    counts = np.fromiter(map(len, groups), np.int64, len(groups))
-    owner = np.repeat(np.arange(len(groups)), counts)
-    v = values[np.fromiter(itertools.chain.from_iterable(groups), np.int64, int(counts.sum()))]
-    v = v[np.lexsort((v, owner))]
-    first = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    return (v[first + (counts - 1) // 2] + v[first + counts // 2]) / 2
 
 
 def _align_sides(s_m, z_m, centre_t, side, cfg: LayersConfig) -> np.ndarray:
