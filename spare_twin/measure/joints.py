@@ -105,15 +105,16 @@ def hidden_joint(thickness: Thickness, layers: list[np.ndarray], starts: np.ndar
     `MIN_JOINT_EXCESS_LAYERS`) somewhere away from every other layer's points (a joint with its
     parent or child, or another plate crossing it, is two plates thick too) and from its own joint:
     two links whose layers the rounding ran into one. None where there is none."""
+    trees = [cKDTree(own) if len(own) else None for own in layers]
     for j, own in enumerate(layers):
         if len(own) == 0:
             continue
         places = own[:: max(1, len(own) // MAX_SCAN_PLACES)]
         if j > 0:
             places = places[np.linalg.norm(places - starts[j], axis=1) > SCAN_CLEARANCE_M]
-        for k, other in enumerate(layers):
-            if k != j and len(other) and len(places):
-                places = places[cKDTree(other).query(places)[0] > SCAN_CLEARANCE_M]
+        for k, tree in enumerate(trees):
+            if k != j and tree is not None and len(places):
+                places = places[tree.query(places)[0] > SCAN_CLEARANCE_M]
         thick = places[thickness.excess_layers(places) > MIN_JOINT_EXCESS_LAYERS]
         if len(thick) < MIN_THICK_PLACES:
             continue
