@@ -10,6 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spare_twin.measure.fit import distance_to_segment
+
 HALF_WIDTH_M = 0.006
 HALF_THICKNESS_M = 0.003
 
@@ -29,9 +31,7 @@ class Plate:
         return (sz - self.a) @ ab / max(float(np.linalg.norm(ab)), 1e-12)
 
     def covers(self, sz: np.ndarray) -> np.ndarray:
-        ab = self.b - self.a
-        u = np.clip((sz - self.a) @ ab / max(float(ab @ ab), 1e-12), 0.0, 1.0)
-        return np.linalg.norm(sz - (self.a + u[:, None] * ab), axis=1) <= HALF_WIDTH_M
+        return distance_to_segment(sz, self.a, self.b) <= HALF_WIDTH_M
 
     def centre_t_m(self, sz: np.ndarray) -> np.ndarray:
         return self.t_at_a_m + np.sin(self.lean_rad) * self.along_m(sz)
