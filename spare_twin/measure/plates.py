@@ -18,10 +18,9 @@ from the nearest point reached.
 
 from __future__ import annotations
 
-import heapq
-
 import numpy as np
 from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 #: The plane neighbourhood whose plate centres give a point's local comb phase.
@@ -53,24 +52,20 @@ def local_comb_layers(
     # the base link is layer 0 by definition: the column's phase, moved to the pitch its points sit at
     column_zero = float(np.angle(phasor[column].sum())) / wave
     column_zero += pitch_m * np.rint((np.median(centre_t_m[column]) - column_zero) / pitch_m)
-    neighbours = tree.query_ball_point(sz_m, step_m, return_sorted=True)
+    # Dijkstra outwards over the points within a step of each other (csgraph: one pass in C, where a
+    # heap in Python took a third of the measurement): each point's zero unwrapped against the point it
+    # is reached from. A tiny weight on every pair keeps coincident points joined.
+    pairs = tree.sparse_distance_matrix(tree, step_m, output_type="coo_matrix").tocsr()
+    pairs.data += 1e-12
     zero = np.full(n, np.nan)
-    best = np.full(n, np.inf)
-    parent = np.full(n, -1)
-    heap = [(0.0, int(i)) for i in np.flatnonzero(column)]
-    best[column] = 0.0
+    sources, ref = np.flatnonzero(column), None
     while True:
-        while heap:  # Dijkstra outwards: each point's zero unwrapped against the one it is reached from
-            dist, i = heapq.heappop(heap)
-            if not np.isnan(zero[i]) or dist > best[i]:
+        dist, parent, _ = dijkstra(pairs, indices=sources, min_only=True, return_predecessors=True)
+        for i in np.argsort(dist, kind="stable")[: int(np.isfinite(dist).sum())]:
+            if not np.isnan(zero[i]):
                 continue
-            ref = column_zero if parent[i] < 0 else zero[parent[i]]
-            zero[i] = ref + _wrapped(local_zero[i] - ref, pitch_m)
-            for j in neighbours[i]:
-                d = dist + float(np.hypot(*(sz_m[j] - sz_m[i])))
-                if np.isnan(zero[j]) and d < best[j]:
-                    best[j], parent[j] = d, i
-                    heapq.heappush(heap, (d, j))
+            base = (column_zero if ref is None else zero[ref]) if parent[i] < 0 else zero[parent[i]]
+            zero[i] = base + _wrapped(local_zero[i] - base, pitch_m)
         waiting = np.flatnonzero(np.isnan(zero))
         if not len(waiting):
             break
@@ -79,9 +74,7 @@ def local_comb_layers(
         reached = np.flatnonzero(~np.isnan(zero))
         gap, nearest = cKDTree(sz_m[reached]).query(sz_m[waiting])
         k = int(np.argmin(gap))
-        j, i = int(waiting[k]), int(reached[nearest[k]])
-        best[j], parent[j] = best[i] + float(gap[k]), i
-        heap = [(best[j], j)]
+        sources, ref = np.array([waiting[k]]), int(reached[nearest[k]])
     centres = (centre_t_m - zero) / pitch_m
     labels = np.rint(centres).astype(np.int64)
     return labels, centres
