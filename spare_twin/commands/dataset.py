@@ -89,29 +89,21 @@ def register(sub) -> None:
         "profile sample for the profile network (the capture is deleted); chain seeds 1e9 + S * 1e6 + i, never a "
         "bench seed. Takes --out, --instances, --seed, --workers, --force only",
     )
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, rig_only_defaults={k: p.get_default(k) for k in _RIG_ONLY})
 
 
-#: The options `--handheld` does not take, with their defaults.
-_RIG_ONLY = {
-    "preset": None,
-    "backend": "local",
-    "ray_address": None,
-    "ray_shards": "driver",
-    "frames": None,
-    "rig": "spare8",
-    "geometry": "sim",
-    "sim2real": False,
-    "print_physics": False,
-    "no_segmentation": False,
-}
+#: The options `--handheld` does not take (their defaults are the parser's: `register`).
+_RIG_ONLY = (
+    "preset", "backend", "ray_address", "ray_shards", "frames", "rig", "geometry", "sim2real", "print_physics",
+    "no_segmentation",
+)  # fmt: skip
 
 
 def run_handheld(args: argparse.Namespace) -> int:
     from spare_twin.bench.handheld_samples import HandheldConfig, handheld_dataset
     from spare_twin.errors import SpareTwinError
 
-    given = [k for k, default in _RIG_ONLY.items() if getattr(args, k) != default]
+    given = [k for k, default in args.rig_only_defaults.items() if getattr(args, k) != default]
     if given:
         flag = "--" + given[0].replace("_", "-")
         raise SpareTwinError(f"{flag}: not an option of --handheld (it draws the bench's captures)")
