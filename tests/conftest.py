@@ -6,9 +6,9 @@ pytest-xdist's workers (`built_once`)."""
 import os
 
 # Before anything loads numpy or torch: each pytest-xdist worker gets its share of the cores for OpenMP
-# (torch, and `spare_twin.threads`), and one BLAS thread (`spare_twin/__init__.py` says why). Two workers
-# each running threads for every core made the suite 14 % slower on the 2-core CI machine (1305 s of
-# tests against 1123 s).
+# (torch, and `spare_twin.threads`), and one BLAS thread (`spare_twin/__init__.py` says why). With two
+# workers each running threads for every core, the suite's tests took 16 % longer on this 2-core machine
+# (1,305 s of test time against 1,123 s).
 if "PYTEST_XDIST_WORKER_COUNT" in os.environ and "OMP_NUM_THREADS" not in os.environ:
     _share = len(os.sched_getaffinity(0)) // int(os.environ["PYTEST_XDIST_WORKER_COUNT"])
     os.environ["OMP_NUM_THREADS"] = str(max(_share, 1))
