@@ -94,32 +94,33 @@ def register_on_object(
     if movable.sum() < 2:
         return views
     owner = np.concatenate([np.full(len(p), i) for i, (p, _) in enumerate(seen)])
+    start = np.cumsum([0] + [len(p) for p, _ in seen])  # view i's points: start[i]:start[i + 1]
     M = [np.eye(4) for _ in views]  # each view's correction, table frame
     for r in range(cfg.rounds):
         dist = cfg.match_distances_m[r * len(cfg.match_distances_m) // cfg.rounds]
-        points = [rigid(Mi, p) for Mi, (p, _) in zip(M, seen)]
-        normals = [n @ Mi[:3, :3].T for Mi, (_, n) in zip(M, seen)]
-        all_points, all_normals = np.concatenate(points), np.concatenate(normals)
-        tree = cKDTree(all_points)
+        all_points = np.concatenate([rigid(Mi, p) for Mi, (p, _) in zip(M, seen)])
+        all_normals = np.concatenate([n @ Mi[:3, :3].T for Mi, (_, n) in zip(M, seen)])
+        # every point's match in one query, the nearest point of another view within `dist` on a surface
+        # that faces the same way: a query and its threads per view took a third longer for the same poses
+        # (a 27-frame capture, bench seed 30355: 3.3 s against 2.3-2.6 s)
+        d, j = cKDTree(all_points).query(all_points, k=8, distance_upper_bound=dist, workers=cores())
+        jj = np.minimum(j, len(owner) - 1)
+        facing = np.sum(all_normals[:, None, :] * all_normals[jj], axis=2) > cfg.min_normal_cos
+        other = (d < dist) & (owner[jj] != owner[:, None]) & facing
+        has = other.any(axis=1)
+        q_idx = j[np.arange(len(j)), np.argmax(other, axis=1)]
+        q, n = all_points[q_idx], all_normals[q_idx]
+        res = np.sum((all_points - q) * n, axis=1)
+        x, y = all_points[:, 0], all_points[:, 1]
+        J = np.stack([x * n[:, 1] - y * n[:, 0], n[:, 0], n[:, 1]], axis=1)
+        w = np.sqrt(np.minimum(1.0, cfg.huber_m / np.maximum(np.abs(res), 1e-12)))
         steps = np.zeros((len(views), 3))
-        for i, p in enumerate(points):
-            if not movable[i]:
+        for i in np.flatnonzero(movable):
+            rows = start[i] + np.flatnonzero(has[start[i] : start[i + 1]])
+            if len(rows) < cfg.min_points:
                 continue
-            d, j = tree.query(p, k=8, distance_upper_bound=dist, workers=cores())
-            jj = np.minimum(j, len(owner) - 1)
-            facing = np.sum(normals[i][:, None, :] * all_normals[jj], axis=2) > cfg.min_normal_cos
-            other = (d < dist) & (owner[jj] != i) & facing
-            has = other.any(axis=1)
-            if has.sum() < cfg.min_points:
-                continue
-            p = p[has]
-            j = j[has, np.argmax(other[has], axis=1)]  # the nearest point of another view
-            q, n = all_points[j], all_normals[j]
-            res = np.sum((p - q) * n, axis=1)
-            J = np.stack([p[:, 0] * n[:, 1] - p[:, 1] * n[:, 0], n[:, 0], n[:, 1]], axis=1)
-            w = np.sqrt(np.minimum(1.0, cfg.huber_m / np.maximum(np.abs(res), 1e-12)))
-            H, g = normal_equations(J * w[:, None], res * w)
-            steps[i] = -np.linalg.solve(H + 1e-6 * len(p) * np.eye(3), g)
+            H, g = normal_equations(J[rows] * w[rows, None], res[rows] * w[rows])
+            steps[i] = -np.linalg.solve(H + 1e-6 * len(rows) * np.eye(3), g)
         steps[movable] -= np.mean(steps[movable], axis=0)  # the views as a whole stay put
         M = [base_pose(steps[i, 1], steps[i, 2], steps[i, 0]) @ M[i] for i in range(len(views))]  # turn, slide
     return [
