@@ -160,31 +160,22 @@ def test_a_network_sure_of_one_link_more_leaves_the_measured_answer_whole():
         Estimate(None, None, None)  # no count goes with a reason
 
 
-@pytest.mark.parametrize(
-    "rms_m, network_n, answered",
-    [
-        (0.0024, 1, False),  # a blurred chain, the network counting otherwise: no answer (bench seed 30175)
-        (0.0010, 1, True),  # a chain in register stands against the network
-        (0.0024, 2, True),  # a blurred chain the network counts the same
-        (0.0024, None, True),  # a network with no count of its own disputes nothing
-    ],
-)
-def test_a_loose_measurement_the_network_disputes_gives_no_answer(rms_m, network_n, answered):
-    """The measured count stands against the network's only where its chain fits its points in
-    register (`DISPUTED_RMS_M`); a loose fit the network counts otherwise is no answer, with both
-    counts and the fit in the reason."""
+@pytest.mark.parametrize("rms_m", [0.0010, 0.0024, 0.0081])
+@pytest.mark.parametrize("network_n", [1, 2, None])
+def test_the_measured_count_stands_whatever_the_network_counts(rms_m, network_n):
+    """A measured chain is the answer however loosely it fits (up to the measurement's own limit) and
+    whatever the network counts: on hand-held captures the network's dissent was no evidence (bench
+    seeds 30344, 30352, 30371, 30380: right counts at 1.7-8.1 mm RMS that the network disputed). The
+    network's own estimate stays beside the answer."""
     from spare_twin.measure.layers import LayerMeasurement
-    from spare_twin.predict.combine import DISPUTED_RMS_M, combined
-    from spare_twin.predict.estimate import Estimate
+    from spare_twin.predict.combine import combined
+    from spare_twin.predict.estimate import Estimate, Prediction
 
-    assert 0.0010 < DISPUTED_RMS_M < 0.0024
     m = LayerMeasurement(2, np.array([1.7, 0.7, 0.5]), np.array([0.2, 0.5]), (700, 600, 200, 0, 0, 0, 0, 0), rms_m)
     measurement = Estimate(2, (1.7, 0.7, 0.5), (0.2, 0.5))
     network = Estimate(network_n, (2.9, 1.1), (3.1,)) if network_n else Estimate.none("too weak")
     answer, source = combined(m, network, measurement)
-    if answered:
-        assert answer.n_links == 2 and set(source.values()) == {"measurement"}
-    else:
-        assert answer.n_links is None and source is None
-        assert "disagrees" in answer.reason and "2 moving links" in answer.reason and "reads 1" in answer.reason
-        assert f"{1000 * rms_m:.1f} mm" in answer.reason
+    assert answer.n_links == 2 and answer.link_lengths_pu == (1.7, 0.7, 0.5)
+    assert set(source.values()) == {"measurement"}
+    out = Prediction(answer, source, network, measurement, "combined", "profile", "m.pt", "rec", 0.08).to_json()
+    assert out["n_links"] == 2 and out["network"]["n_links"] == network_n
