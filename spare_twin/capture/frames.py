@@ -100,7 +100,7 @@ def load_frames(rec, cam: str, frames: list[int] | None = None) -> list[RGBDFram
 
 def to_o3d_rgbd(frame: RGBDFrame, max_depth_m: float):
     """Legacy open3d RGBDImage (colour kept as RGB, depth in metres after the frame's own scale)."""
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     return o3d.geometry.RGBDImage.create_from_color_and_depth(
         o3d.geometry.Image(np.ascontiguousarray(frame.color)),
@@ -112,7 +112,7 @@ def to_o3d_rgbd(frame: RGBDFrame, max_depth_m: float):
 
 
 def o3d_intrinsic(K: np.ndarray, width: int, height: int):
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     return o3d.camera.PinholeCameraIntrinsic(
         int(width), int(height), float(K[0, 0]), float(K[1, 1]), float(K[0, 2]), float(K[1, 2])
@@ -147,7 +147,9 @@ def rotation_error_deg(R: np.ndarray) -> float:
 
 
 def quiet_open3d():
-    """Import open3d with its console messages limited to errors (they go to stdout, which JSON output owns)."""
+    """Import open3d with its console messages limited to errors (they go to stdout, which JSON output owns).
+    The capture package imports open3d only through this, where it needs it: importing it up front cost
+    every `capture` command 1.1-1.6 s, most of which never call it (import, register)."""
     import open3d as o3d
 
     o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)

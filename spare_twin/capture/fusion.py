@@ -9,6 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from spare_twin.capture.checks import is_number, positive, whole
+from spare_twin.capture.frames import quiet_open3d
 from spare_twin.errors import SpareTwinError
 
 
@@ -57,7 +58,7 @@ def fuse_frames(
     extract the same values in a different order from run to run, and the same poses must give the
     same cloud byte for byte.
     """
-    import open3d as o3d
+    o3d = quiet_open3d()
     from tqdm import tqdm
 
     t0 = time.perf_counter()
@@ -120,7 +121,7 @@ def mesh_ply_bytes(mesh) -> bytes:
     import os
     import tempfile
 
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     fd, tmp = tempfile.mkstemp(suffix=".ply")
     os.close(fd)
@@ -134,7 +135,7 @@ def mesh_ply_bytes(mesh) -> bytes:
 
 def read_ply_points(path) -> tuple[np.ndarray, np.ndarray]:
     """Points and colours (0..1) of a PLY cloud."""
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     pc = o3d.io.read_point_cloud(str(path))
     if len(pc.points) == 0:

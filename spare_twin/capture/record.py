@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.capture.checks import positive, whole
-from spare_twin.capture.frames import K_from, check_depth
+from spare_twin.capture.frames import K_from, check_depth, quiet_open3d
 from spare_twin.errors import SpareTwinError
 from spare_twin.output import check_output
 from spare_twin.recording import Camera, Recording, RecordingWriter
@@ -145,7 +145,7 @@ def stream_to_recording(
 def start_realsense(cfg: RecordConfig = RecordConfig()):
     """The first (or `cfg.serial`'s) RealSense, configured by `cfg` and capturing (recording its raw
     stream to `cfg.bag` where set): an open3d RealSenseSensor; the caller stops it."""
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     if not o3d.t.io.RealSenseSensor.list_devices():
         raise SpareTwinError("no Intel RealSense device found (check the USB 3 cable and `rs-enumerate-devices`)")

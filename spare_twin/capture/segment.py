@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from spare_twin.capture.frames import quiet_open3d
 from spare_twin.errors import SpareTwinError
 
 
@@ -71,7 +72,7 @@ def find_object(
     `camera_centers` (M, 3): orient the table normal towards them. `view_target`: a point the cameras
     look at (default: the cloud's median), to pick the object among clusters.
     """
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     points = np.asarray(points, np.float64)
     colors = np.full_like(points, 0.5) if colors is None else np.asarray(colors, np.float64)

@@ -166,9 +166,6 @@ def register(sub) -> None:
 
 
 def _progress(args) -> bool:
-    from spare_twin.capture.frames import quiet_open3d
-
-    quiet_open3d()  # every handler calls this first: open3d's messages would land on stdout
     return sys.stderr.isatty() or not getattr(args, "json", False)
 
 
