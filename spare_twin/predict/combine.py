@@ -10,11 +10,11 @@ scored on every instance), so its figures are those of `predict` wherever `predi
 
 Releases 0.6.6-0.6.11 gave no answer where the two counted otherwise and the measured chain fitted
 its points looser than 1.5 mm RMS (a blurred capture, where either might be the one that is right).
-On hand-held captures the network alone counts 0.67-0.71 right, and with today's measurement its
-dissent was no evidence: on 252 captures with every effect (the 180 development captures of
-`dataset --handheld --seed 1` and the held-out sets 30318-30365, now development) that rule turned 9
-right counts into no answer and 1 wrong count into no answer (docs/sim2real.md). Both estimates are
-still in `predict`'s output, the network's beside the answer.
+On hand-held captures the network alone counts 0.67-0.71 right, and with the measurement of release
+0.6.10 on, its dissent was no evidence: on 252 captures with every effect (the 180 development
+captures of `dataset --handheld --seed 1` and the real sides of bench seeds 30318-30389, now
+development) that rule turned 9 right counts and 1 wrong one into no answer (docs/sim2real.md). Both
+estimates are still in `predict`'s output, the network's beside the answer.
 
 Until release 0.6.4 the network's count stood where it was confident of exactly one link more than
 the measurement (a last link hidden behind the others). On the bench's captures with a real print's
