@@ -93,8 +93,9 @@ def register_on_object(
     movable = np.array([len(p) >= cfg.min_points for p, _ in seen])
     if movable.sum() < 2:
         return views
-    owner = np.concatenate([np.full(len(p), i) for i, (p, _) in enumerate(seen)])
-    start = np.cumsum([0] + [len(p) for p, _ in seen])  # view i's points: start[i]:start[i + 1]
+    sizes = [len(p) for p, _ in seen]
+    owner = np.repeat(np.arange(len(seen)), sizes)  # each point's view
+    start = np.cumsum([0] + sizes)  # view i's points: start[i]:start[i + 1]
     M = [np.eye(4) for _ in views]  # each view's correction, table frame
     for r in range(cfg.rounds):
         dist = cfg.match_distances_m[r * len(cfg.match_distances_m) // cfg.rounds]
