@@ -53,6 +53,17 @@ def test_library_imports_its_own_modules_at_the_top():
     assert not local, "function-local imports of project modules:\n" + "\n".join(local)
 
 
+def test_predict_does_not_import_the_object_and_dataset_stages():
+    """`predict` loads a network and reads a recording: the mesh libraries the object stage builds
+    with (trimesh, networkx, rtree: about 1 s of every `predict` process) stay out of it."""
+    probe = (
+        "import sys, spare_twin.commands.predict, spare_twin.predict.run;"
+        "print(sorted(m for m in ('trimesh', 'networkx', 'rtree', 'spare_twin.dataset.build') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
 def test_nobody_reaches_into_a_recordings_private_parts():
     recording = {LIBRARY / "recording.py", *(LIBRARY / "recording").glob("*.py")}
     private = {"_poses", "_checked", "_w", "_ctx", "_finish", "_write_png"}

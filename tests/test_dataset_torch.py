@@ -94,7 +94,7 @@ def test_pose_jitter_turns_all_views_about_the_table_normal(data):
 
 
 def test_on_the_fly_streams_are_disjoint_across_processes_and_workers():
-    from spare_twin.dataset.torch_data import stream_indices
+    from spare_twin.dataset.streams import stream_indices
 
     S, N, W = 10, 2, 3  # sequences (rounded up to a multiple of N by OnTheFlyDataset), processes, workers
     per_rank = []

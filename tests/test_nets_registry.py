@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from spare_twin.nets import data, profile_train, registry
+from spare_twin.nets import data, profile_train, registry, sample_sources
 from spare_twin.nets.presets import ARCHS, PRESETS
 
 NETS = Path(registry.__file__).parent
@@ -24,7 +24,7 @@ def _batch(net, B=2):
 
 
 def test_every_architecture_a_config_accepts_has_one_entry():
-    assert tuple(registry.ARCHITECTURES) == ARCHS
+    assert tuple(registry.ARCHITECTURES) == ARCHS == tuple(sample_sources.SAMPLE_SOURCES)
     assert all(name == a.name for name, a in registry.ARCHITECTURES.items())
 
 
@@ -34,7 +34,7 @@ def test_every_preset_resolves_through_the_registry(name):
     net = PRESETS[name].net
     arch = registry.architecture(net)
     assert arch is registry.ARCHITECTURES[net.arch]
-    assert arch.samples in (data.stored_samples, profile_train.profile_samples)
+    assert sample_sources.samples_of(net) in (data.stored_samples, profile_train.profile_samples)
     assert (arch.reads == "posed views") == net.posed
     assert (arch.reads == "profile") == (net.mode == "profile") == arch.observed_samples
     if "tmp" in name:
@@ -59,6 +59,8 @@ def test_an_unknown_architecture_is_a_one_line_error():
 
     with pytest.raises(SpareTwinError, match="net.arch: 'resnet'"):
         registry.architecture("resnet")
+    with pytest.raises(SpareTwinError, match="net.arch: 'resnet'"):
+        sample_sources.samples_of("resnet")
 
 
 def test_nets_code_asks_the_registry_instead_of_testing_architecture_names():

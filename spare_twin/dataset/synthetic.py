@@ -22,7 +22,7 @@ import numpy as np
 import torch.utils.data as _tud
 
 from spare_twin.config import PartDims, sample_lengths
-from spare_twin.dataset.torch_data import stream_indices
+from spare_twin.dataset.streams import stream_indices
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json
 from spare_twin.sim.rig import Rig

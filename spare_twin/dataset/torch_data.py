@@ -30,6 +30,7 @@ from spare_twin.config import LABEL_SLOTS, MAX_MOVING_LINKS
 from spare_twin.dataset.build import load_manifest
 from spare_twin.dataset.generate import GenConfig, render_sequence
 from spare_twin.dataset.store import lengths_label_pu
+from spare_twin.dataset.streams import stream_indices
 from spare_twin.errors import SpareTwinError
 from spare_twin.sim.noise import DepthNoise
 from spare_twin.sim.twin import Twin
@@ -224,16 +225,6 @@ def MultiViewDataset(root, split="train", modality="depth", **kw) -> SpareDatase
 def TemporalDataset(root, split="train", modality="depth", **kw) -> SpareDataset:
     """100 frames of one camera (the paper's TMP input)."""
     return SpareDataset(root, split, "tmp", modality, **kw)
-
-
-def stream_indices(rank: int, world_size: int, worker: int, workers: int, sequences: int | None):
-    """The sequence numbers (0-based) that data-loader `worker` of `workers` in process `rank` of `world_size`
-    renders: stream s = rank + world_size * worker of S = world_size * workers takes s, s + S, s + 2S, ...
-    below `sequences` (None: endless). The streams are disjoint and cover 0 .. sequences - 1."""
-    k, step = rank + world_size * worker, world_size * workers
-    while sequences is None or k < sequences:
-        yield k
-        k += step
 
 
 class OnTheFlyDataset(IterableDataset):

@@ -23,7 +23,7 @@ from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.distributed import pick_device
 from spare_twin.nets.plots import write_confusion_png
-from spare_twin.nets.registry import architecture
+from spare_twin.nets.sample_sources import samples_of
 from spare_twin.nets.train import run_inference, summarize
 from spare_twin.output import writing
 
@@ -127,7 +127,7 @@ def evaluate(
     """The network on its own: count accuracy, E_L (end-to-end where the model can, else n known),
     per-n breakdown and the confusion matrix (confusion_matrix.png and evaluation.json under
     `out_dir`) over `split`, on a seeded random subset of `max_samples` if given. No `model_path`:
-    the shipped predict model. The samples come from the registry's source for the network (the
+    the shipped predict model. The samples come from the network's sample source (`nets.sample_sources`) (the
     profile network's: observed and measured once, in every core, and cached; see
     `nets.profile_train`); the measurement is carried in `predictions`, not applied.
     `out_dir` is an output (`spare_twin.output`): `force` replaces a folder that is not an earlier one."""
@@ -136,7 +136,7 @@ def evaluate(
     model_path = model_path or ckpt.default_model("predict")
     dev = pick_device(device)
     model, net, ck = ckpt.load_model(model_path, dev)
-    ds = architecture(net).samples([Path(data_dir)], split, net, None, None, progress)
+    ds = samples_of(net)([Path(data_dir)], split, net, None, None, progress)
     outputs = (
         contextlib.nullcontext(None)
         if out_dir is None

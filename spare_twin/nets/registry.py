@@ -1,8 +1,11 @@
 """The one registry of network architectures: for every `NetConfig.arch`, how its network is built,
-what it reads, how its outputs become predictions, and where its training samples come from.
+what it reads and how its outputs become predictions. Where its training samples come from is the
+data side's entry in `nets.sample_sources`, kept apart so that loading a network (`predict`) does not
+import the dataset stage.
 
 Code in nets asks `architecture(net)` instead of testing architecture names; a new architecture is
-one more entry here (`tests/test_nets_registry.py` checks that every preset resolves through it).
+one entry here and one in `nets.sample_sources` (`tests/test_nets_registry.py` checks that every
+preset resolves through both).
 """
 
 from __future__ import annotations
@@ -15,7 +18,6 @@ from torch import nn
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets.blocks import N_CLASSES, SLOTS
-from spare_twin.nets.data import stored_samples
 from spare_twin.nets.grey_lift import GreyLiftNet
 from spare_twin.nets.models import (
     CNNLSTMNet,
@@ -29,7 +31,6 @@ from spare_twin.nets.models import (
     decode_routed,
 )
 from spare_twin.nets.presets import NetConfig
-from spare_twin.nets.profile_train import profile_samples
 
 #: What a network reads (`Architecture.reads`).
 READS = ("views", "posed views", "profile")
@@ -48,10 +49,6 @@ class Architecture:
     which `spare_twin.observe.chain` draws from any posed views."""
     decode: Callable[[nn.Module, NetConfig, dict, torch.Tensor | None], dict]
     """`(model, net, inputs, true_n) -> predictions` (see `models.decode_heads`)."""
-    samples: Callable
-    """`(data_dirs, split, net, train, run_dir, progress) -> Dataset` of docs/design.md samples:
-    `train` (a TrainConfig) when training (its read-time augmentation on the train split), None when
-    evaluating; `run_dir`: the run folder, for sources that observe their samples once into it."""
     takes_count: bool = False
     """The forward pass reads `n_links`: in training the true count routes the length regressors."""
     needs_count: bool = False
@@ -85,30 +82,24 @@ def _paper_net(network: type[nn.Module]) -> Callable[[NetConfig], nn.Module]:
 ARCHITECTURES: dict[str, Architecture] = {
     a.name: a
     for a in [
-        Architecture(
-            "conv3d", _paper_net(Conv3DNet), "views", decode_heads, stored_samples, regresses_padded_slots=True
-        ),
-        Architecture(
-            "cnn_lstm", _paper_net(CNNLSTMNet), "views", decode_heads, stored_samples, regresses_padded_slots=True
-        ),
+        Architecture("conv3d", _paper_net(Conv3DNet), "views", decode_heads, regresses_padded_slots=True),
+        Architecture("cnn_lstm", _paper_net(CNNLSTMNet), "views", decode_heads, regresses_padded_slots=True),
         Architecture(
             "conv3d_per_n",
             PerCountRegressors,
             "views",
             decode_known_count,
-            stored_samples,
             takes_count=True,
             needs_count=True,
         ),
-        Architecture("naive", NaiveCombination, "views", decode_routed, stored_samples, takes_count=True),
-        Architecture("geo_voxel", GeoVoxelNet, "posed views", decode_heads, stored_samples),
-        Architecture("grey_lift", GreyLiftNet, "posed views", decode_heads, stored_samples),
+        Architecture("naive", NaiveCombination, "views", decode_routed, takes_count=True),
+        Architecture("geo_voxel", GeoVoxelNet, "posed views", decode_heads),
+        Architecture("grey_lift", GreyLiftNet, "posed views", decode_heads),
         Architecture(
             "profile",
             ProfileNet,
             "profile",
             decode_heads,
-            profile_samples,
             regresses_padded_slots=True,
             observed_samples=True,
             several_datasets=True,

@@ -36,6 +36,7 @@ from spare_twin.nets.distributed import Group, session
 from spare_twin.nets.models import input_norms, model_inputs
 from spare_twin.nets.presets import NetConfig, Preset, TrainConfig, net_from_dict
 from spare_twin.nets.registry import architecture, build_model, decode
+from spare_twin.nets.sample_sources import samples_of
 from spare_twin.output import writing
 
 
@@ -343,10 +344,10 @@ def _replaceable(out_dir: Path, data_dirs: list[Path]) -> bool:
 
 
 def _open_sources(net: NetConfig, tr: TrainConfig, data_dirs: list[Path], out_dir: Path, main: bool, progress: bool):
-    """(training samples, validation samples or None): the registry's sample source, before the run
+    """(training samples, validation samples or None): the architecture's sample source, before the run
     folder is touched (a bad data folder is refused first). Samples observed into the run folder are
     observed later, by `_observe_sources`."""
-    samples = architecture(net).samples
+    samples = samples_of(net)
     train_src = samples(data_dirs, "train", net, tr, out_dir, progress)  # with on_the_fly: only its size is used
     val_ds = None
     if main:
