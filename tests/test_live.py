@@ -169,15 +169,17 @@ def test_updates_read_few_views_until_the_first_count_and_all_at_the_end():
 
 
 def test_the_estimate_process_answers_as_the_thread_and_ends_with_its_pipe(sweep):
-    """The measurement in its own process (`live.worker`) gives the very answer it gives in-thread; a
+    """The measurement in its own process (`measure.process`) gives the very answer it gives in-thread; a
     one-line error in it is one line here; it ends when the parent closes its pipe (as when it dies)."""
     import threading
 
+    from spare_twin.config import PartDims
     from spare_twin.errors import SpareTwinError
-    from spare_twin.live.estimate import estimate_from_frames, load_estimator
+    from spare_twin.live.estimate import estimate_from_frames, load_estimator, view_arrays
     from spare_twin.live.sources import ReplaySource
     from spare_twin.live.track import Tracker
-    from spare_twin.live.worker import MeasureProcess
+    from spare_twin.measure.process import MeasureProcess
+    from spare_twin.predict.abstain import MIN_ARC_DEG
 
     src = ReplaySource(sweep, speed=0)
     tracker = Tracker(src.info.K, src.info.depth_scale)
@@ -190,7 +192,7 @@ def test_the_estimate_process_answers_as_the_thread_and_ends_with_its_pipe(sweep
         there = estimate_from_frames(est, tracker.kept, 8, process)
         assert here.n_links == 2 and there.to_json() == here.to_json()
         with pytest.raises(SpareTwinError, match="print_scale"):
-            process.measure(tracker.kept[:3], 3, -1.0)
+            process.measure(view_arrays(tracker.kept[:3]), 3, -1.0, PartDims(), MIN_ARC_DEG)
         assert estimate_from_frames(est, tracker.kept, 8, process).to_json() == here.to_json()  # still serving
     finally:
         process.close()

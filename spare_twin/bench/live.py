@@ -12,7 +12,7 @@ from the first frame on):
   about 1.7 s; the rest is the wait for the update and the update itself;
 - when the last frame came (wall seconds; more than the stream's length: the reader fell behind);
 - peak RSS of the process (`resource.getrusage`: everything loaded, torch included) and of the
-  estimate's own process (`live.worker`, as it says when it ends);
+  estimate's own process (`measure.process`, as it says when it ends);
 - the load average at the start and the end (the machine may be shared: timings are only comparable
   under like load);
 - agreement: the last update against the final answer (`predict` on the recording `live` wrote) and

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 
 
 def register(sub) -> None:
@@ -69,8 +70,8 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from spare_twin.commands.common import flags
+    from spare_twin.predict.early import check_options, start_measuring
     from spare_twin.predict.parts import read_parts
-    from spare_twin.predict.run import predict_recording
 
     with flags(
         frame="--frame",
@@ -85,19 +86,31 @@ def run(args) -> int:
         parts="--parts",
     ):
         parts = read_parts(args.parts) if args.parts is not None else None
-        res = predict_recording(
-            args.recording,
-            args.model,
-            args.frame,
-            args.camera,
-            args.print_scale,
-            args.n_links,
-            args.device,
-            yaw_hypotheses=args.yaw_hypotheses,
-            answer=args.answer,
-            outside_rig=args.outside_rig,
-            parts=parts,
-        )
+        check_options(args.frame, args.print_scale, args.n_links, args.yaw_hypotheses, args.device, args.answer, parts)
+        # the default (profile) network's path in a process that has yet to import torch: the recording
+        # measured in a process of its own meanwhile (predict.early)
+        early = args.model is None and args.device == "cpu" and "torch" not in sys.modules
+        measuring = start_measuring(args.recording, args.frame, args.camera, args.print_scale, parts) if early else None
+        try:
+            from spare_twin.predict.run import predict_recording
+
+            res = predict_recording(
+                args.recording,
+                args.model,
+                args.frame,
+                args.camera,
+                args.print_scale,
+                args.n_links,
+                args.device,
+                yaw_hypotheses=args.yaw_hypotheses,
+                answer=args.answer,
+                outside_rig=args.outside_rig,
+                parts=parts,
+                measuring=measuring,
+            )
+        finally:
+            if measuring is not None:
+                measuring.close(kill=True)
     if args.json:
         print(json.dumps(res.to_json()))
     elif res.reason is not None and res.network is None:  # no network ran: the one reason is all there is

@@ -5,7 +5,7 @@ An update reads `views` placed frames spread evenly over everything kept (the sa
 uses to pick a sweep's frames: evenly spaced through the stream), brings them into register on the
 object (`observe.on_object`, as `predict` does for a sweep it registered) and goes through
 `predict`'s core: the same observation and measurement (`measure.chain.measure_views`, in a process
-of its own: `live.worker`), network and combination (`predict.run.answer_of`), so an update's
+of its own: `measure.process`), network and combination (`predict.run.answer_of`), so an update's
 answer has `predict --json`'s keys and sources. The final answer is
 `predict.run.predict_recording` on the written recording, so the last line `live` prints is what
 `predict` says of that recording.
@@ -21,10 +21,12 @@ import numpy as np
 from spare_twin.config import PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.live.track import PlacedFrame
-from spare_twin.live.worker import MeasureProcess, measure_arrays, view_arrays
+from spare_twin.measure.process import MeasureProcess, measure_arrays
 from spare_twin.nets import checkpoint as ckpt
+from spare_twin.predict.abstain import MIN_ARC_DEG
+from spare_twin.predict.early import check_options
 from spare_twin.predict.estimate import MeasurementEvidence, NetworkEvidence, Prediction
-from spare_twin.predict.run import answer_of, check_options, predict_recording
+from spare_twin.predict.run import answer_of, predict_recording
 
 #: An answer is strong evidence when the measurement gave it and its chain fits its points this well
 #: (RMS, metres; `measure.chain.CLEAN_PART_RMS_M`: a sweep in register fits to 0.2-0.5 mm) ...
@@ -79,8 +81,14 @@ def estimate_from_frames(
     est: Estimator, kept: list[PlacedFrame], views: int = 16, process: MeasureProcess | None = None
 ) -> Prediction:
     """`predict`'s answer from `views` of the placed frames (see the module doc); the observation and
-    measurement in `process` (`live.worker`) when one is given, else here."""
+    measurement in `process` (`measure.process`) when one is given, else here."""
     return estimate_and_arc(est, kept, views, process)[0]
+
+
+def view_arrays(frames: list[PlacedFrame]) -> list[tuple]:
+    """The placed frames as plain arrays (`measure.process.measure_arrays`): raw uint16 depth travels
+    at half the size of metres in float32."""
+    return [(p.frame.depth_u16, float(p.frame.depth_scale), p.frame.K, p.T_world_camera, p.frame.color) for p in frames]
 
 
 def estimate_and_arc(
@@ -90,9 +98,9 @@ def estimate_and_arc(
     chain was seen)."""
     chosen = spread(kept, views)
     if process is not None:
-        obs, m = process.measure(chosen, len(kept), est.print_scale, est.parts)
+        obs, m = process.measure(view_arrays(chosen), len(kept), est.print_scale, est.parts, MIN_ARC_DEG)
     else:
-        obs, m = measure_arrays(view_arrays(chosen), len(kept), est.print_scale, est.parts)
+        obs, m = measure_arrays(view_arrays(chosen), len(kept), est.print_scale, est.parts, MIN_ARC_DEG)
     pred = answer_of(obs, m, est.model, est.net, est.model_name, est.answer, est.print_scale, parts=est.parts)
     return pred, (None if obs.reason is not None else obs.arc_deg)
 

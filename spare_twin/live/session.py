@@ -12,7 +12,7 @@ Three threads and a process share the work:
 - the tracker (the calling thread) places each queued frame against the last one (`live.track`);
 - the estimator, every `update_s` seconds that new frames were placed, estimates the chain from the
   frames kept (`live.estimate`; the observation and measurement in a process of its own,
-  `live.worker`, so that they run beside the tracker) and reports it: an update (`on_update`), the
+  `measure.process`, so that they run beside the tracker) and reports it: an update (`on_update`), the
   live view, and once the answer has held for `stable_s` seconds of the stream with strong evidence,
   "enough" (with `until_stable`, the stream stops there).
 
@@ -37,7 +37,7 @@ from spare_twin.errors import SpareTwinError
 from spare_twin.live.estimate import Estimator, estimate_and_arc, final_estimate, is_strong, spread
 from spare_twin.live.sources import Source, StoredFrame, StreamFrame
 from spare_twin.live.track import Tracker
-from spare_twin.live.worker import MeasureProcess
+from spare_twin.measure.process import MeasureProcess
 from spare_twin.observe.chain import arc_round_deg
 from spare_twin.output import check_output
 from spare_twin.predict.abstain import MIN_ARC_DEG, too_little_arc
@@ -76,7 +76,7 @@ class LiveConfig:
     max_kept: int = 120
     """Placed frames kept in memory for the estimate (`live.track`)."""
     estimate_process: bool = True
-    """Observe and measure in a process of its own (`live.worker`), beside the tracker; False: on
+    """Observe and measure in a process of its own (`measure.process`), beside the tracker; False: on
     the estimator thread, taking turns with the tracker."""
 
     def __post_init__(self):
@@ -130,7 +130,7 @@ class LiveResult:
     stream_s: float = 0.0
     """Stream seconds of the last frame received."""
     estimate_process_rss_mb: float | None = None
-    """Peak memory of the estimate's process (`live.worker`), None without one."""
+    """Peak memory of the estimate's process (`measure.process`), None without one."""
     stream_wall_s: float = 0.0
     """Wall seconds from the first frame's arrival to the last's (more than `stream_s`: the reader
     fell behind the source)."""

@@ -46,9 +46,11 @@ def measured_chain(
     camera: str | None = None,
     progress: bool = False,
     parts: PartDims = PartDims(),
+    min_arc_deg: float = 0.0,
 ) -> tuple[ChainObservation, LayerMeasurement]:
     """`measure_views` of a recording folder's views (`observe.views.recording_views`)."""
-    return measure_views(recording_views(rec, frame, camera, progress=progress), print_scale, progress, parts=parts)
+    seen = recording_views(rec, frame, camera, progress=progress)
+    return measure_views(seen, print_scale, progress, min_arc_deg=min_arc_deg, parts=parts)
 
 
 def measure_views(

@@ -10,66 +10,26 @@ yaw-free profile network -> the answer (`predict.combine`), each estimate held t
 
 from __future__ import annotations
 
-import math
 import time
 from pathlib import Path
 
 import numpy as np
 
-from spare_twin.config import MAX_MOVING_LINKS, MIN_MOVING_LINKS, PartDims
+from spare_twin.config import PartDims
 from spare_twin.errors import SpareTwinError
-from spare_twin.measure.chain import measure_views
+from spare_twin.measure.chain import measure_views, measured_chain
 from spare_twin.measure.layers import LayerMeasurement
+from spare_twin.measure.process import MeasureProcess
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.registry import decode
 from spare_twin.observe.chain import ChainObservation
-from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
-from spare_twin.observe.views import PosedViews, recording_views
+from spare_twin.observe.views import PosedViews
 from spare_twin.predict.abstain import MIN_ARC_DEG, hold_network, measurement_estimate, network_estimate, note_parts
 from spare_twin.predict.combine import combined
-from spare_twin.predict.estimate import ANSWERS, FIELDS, Estimate, Prediction
+from spare_twin.predict.early import DEFAULT_PRINT_SCALE, check_options, measuring_request
+from spare_twin.predict.estimate import FIELDS, Estimate, Prediction
 from spare_twin.predict.images import predict_images
 from spare_twin.recording import Recording
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, (int, np.integer)) and not isinstance(v, bool)
-
-
-def check_options(
-    frame: int | None = None,
-    print_scale: float | None = None,
-    n_links: int | None = None,
-    yaw_hypotheses: int | None = None,
-    device: str = "cpu",
-    answer: str = "combined",
-    parts: PartDims | None = None,
-) -> None:
-    """`predict_recording`'s options are usable; else an error naming the parameter. Checked before the
-    model and the recording are read, so a typo costs no registration."""
-    import torch
-
-    if frame is not None and (not _is_int(frame) or frame < 0):
-        raise SpareTwinError(f"frame {frame!r}: must be a frame index, 0 or more")
-    if print_scale is not None and (
-        isinstance(print_scale, bool)
-        or not isinstance(print_scale, (int, float))
-        or not math.isfinite(print_scale)
-        or print_scale <= 0
-    ):
-        raise SpareTwinError(f"print_scale {print_scale!r}: must be a positive number (physical m per paper m)")
-    if n_links is not None and (not _is_int(n_links) or not MIN_MOVING_LINKS <= n_links <= MAX_MOVING_LINKS):
-        raise SpareTwinError(f"n_links {n_links!r}: must be {MIN_MOVING_LINKS}..{MAX_MOVING_LINKS} moving links")
-    if yaw_hypotheses is not None and (yaw_hypotheses not in (1, 2, 4) or isinstance(yaw_hypotheses, bool)):
-        raise SpareTwinError(f"yaw_hypotheses {yaw_hypotheses!r}: must be 1, 2 or 4")
-    if device not in ("cpu", "cuda"):
-        raise SpareTwinError(f"device {device!r}: must be cpu or cuda")
-    if device == "cuda" and not torch.cuda.is_available():
-        raise SpareTwinError("device cuda: no CUDA device is available here; use cpu")
-    if answer not in ANSWERS:
-        raise SpareTwinError(f"answer {answer!r}: must be one of {', '.join(ANSWERS)}")
-    if parts is not None and not isinstance(parts, PartDims):
-        raise SpareTwinError(f"parts {type(parts).__name__}: must be the printed parts' dimensions (a PartDims)")
 
 
 def _refuse(value, name: str, why: str) -> None:
@@ -92,6 +52,7 @@ def predict_recording(
     answer: str = "combined",
     outside_rig: bool = False,
     parts: PartDims | None = None,
+    measuring: MeasureProcess | None = None,
 ) -> Prediction:
     """`predict`'s answer for a recording folder. The profile model (the default) and the measurement
     read the recording's posed views (`observe.views.recording_views`: `frame` for a rig, `camera` for
@@ -102,7 +63,9 @@ def predict_recording(
     profile path finds the chain's base on the table itself. An image network refuses a capture from
     other cameras than its training rig unless `outside_rig` (a diagnostic). The print scale is
     `print_scale` or the default, the printed parts `parts` (`predict.parts.read_parts`) or the
-    defaults: the recording's own object configuration is never read."""
+    defaults: the recording's own object configuration is never read. `measuring`: the process that
+    `predict.early.start_measuring` set measuring this recording with these options (the profile path
+    collects its observation and measurement, the same as its own; the caller closes it)."""
     check_options(frame, print_scale, n_links, yaw_hypotheses, device, answer, parts)
     scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
     parts = parts or PartDims()
@@ -118,10 +81,13 @@ def predict_recording(
         _refuse(n_links, "n_links", "applies to lengths-only models only; this answer counts the links itself")
         why = "applies to image networks only (the profile network reads any capture)"
         _refuse(outside_rig or None, "outside_rig", why)
-        rec = Recording.open(rec_dir)
-        seen = recording_views(rec, frame, camera, progress=progress)
+        request = measuring_request(rec_dir, frame, camera, print_scale, parts, progress)
+        if measuring is not None:
+            obs, m = measuring.recording(*request)
+        else:
+            obs, m = measured_chain(Recording.open(rec_dir), *request[1:])
         name = str(model_path) if model_path else None
-        return predict_views(seen, model, net, name, answer, scale, device, rec_dir, progress, parts)
+        return answer_of(obs, m, model, net, name, answer, scale, device, rec_dir, parts)
     if net.arch != "conv3d_per_n":
         _refuse(n_links, "n_links", f"applies to lengths-only models only; {Path(model_path).name} counts the links")
     return predict_images(

@@ -1,0 +1,121 @@
+"""`spare-twin predict` measures the recording in a process of its own while it imports torch
+(`predict.early`, `measure.process`): the same answer as measured in-process, no torch on that path,
+and the process gone when the command fails or is stopped."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from spare_twin.errors import SpareTwinError
+from spare_twin.predict.early import start_measuring
+from spare_twin.predict.run import predict_recording
+
+
+def test_the_measuring_process_gives_predicts_own_answer(sweep):
+    here = predict_recording(sweep, progress=False)
+    measuring = start_measuring(sweep, progress=False)
+    try:
+        there = predict_recording(sweep, progress=False, measuring=measuring)
+    finally:
+        measuring.close()
+    assert there.n_links == here.n_links == 2
+    assert there.to_json() == here.to_json()  # its JSON has no timings: the same bytes
+    assert measuring._proc.returncode == 0 and measuring.peak_rss_mb > 50.0
+
+
+def test_a_measuring_process_serves_only_the_options_it_was_started_with(sweep):
+    measuring = start_measuring(sweep, progress=False)
+    try:
+        with pytest.raises(ValueError, match="measuring"):
+            predict_recording(sweep, progress=False, measuring=measuring, print_scale=0.1)
+    finally:
+        measuring.close(kill=True)
+    assert measuring._proc.returncode == -signal.SIGKILL
+
+
+def test_the_processs_one_line_error_is_predicts(tmp_path):
+    (tmp_path / "notes.txt").write_text("not a recording\n")
+    with pytest.raises(SpareTwinError) as here:
+        predict_recording(tmp_path, progress=False)
+    measuring = start_measuring(tmp_path, progress=False)
+    try:
+        with pytest.raises(SpareTwinError) as there:
+            predict_recording(tmp_path, progress=False, measuring=measuring)
+    finally:
+        measuring.close()
+    assert str(there.value) == str(here.value) and "recording.json" in str(here.value)
+
+
+def test_the_measuring_path_imports_no_torch():
+    """What the command imports before it sets the measurement going, and the process itself."""
+    probe = (
+        "import sys, spare_twin.commands.predict, spare_twin.predict.early, spare_twin.measure.process;"
+        "print('torch' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "False"
+
+
+def _measuring_children(pid: int) -> list[int]:
+    """Processes running `spare_twin.measure.process` whose parent is `pid`."""
+    found = []
+    for d in Path("/proc").iterdir():
+        if not d.name.isdigit():
+            continue
+        try:
+            stat = (d / "stat").read_text()
+            cmdline = (d / "cmdline").read_bytes()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"spare_twin.measure.process" in cmdline:
+            found.append(int(d.name))
+    return found
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads processes from /proc")
+def test_a_stopped_predict_ends_its_measuring_process(sweep):
+    """SIGTERM (as Ctrl-C) while the process measures: one line, exit 130, and the process gone."""
+    p = subprocess.Popen(
+        [sys.executable, "-m", "spare_twin", "predict", str(sweep), "--json"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+    deadline = time.monotonic() + 120
+    children: list[int] = []
+    while not children and p.poll() is None and time.monotonic() < deadline:
+        children = _measuring_children(p.pid)
+        time.sleep(0.05)
+    assert children, "the measuring process never started"
+    p.send_signal(signal.SIGTERM)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 130 and out == ""
+    assert err.strip().splitlines()[-1] == "spare-twin predict: interrupted"
+    for child in children:
+        for _ in range(100):
+            if not os.path.exists(f"/proc/{child}") or "Z" in Path(f"/proc/{child}/stat").read_text().split()[2]:
+                break
+            time.sleep(0.05)
+        else:
+            pytest.fail(f"the measuring process {child} outlived predict")
+
+
+def test_predict_json_on_a_capture_is_the_same_with_and_without_the_process(sweep):
+    """The command's two paths: the default model (measured in the process) and the same model named
+    (measured in-process)."""
+    from spare_twin.nets.checkpoint import default_model
+
+    cmd = [sys.executable, "-m", "spare_twin", "predict", str(sweep), "--json"]
+    early = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    named = [*cmd, "--model", str(default_model("predict"))]
+    named = subprocess.run(named, capture_output=True, text=True, timeout=600)
+    assert early.returncode == named.returncode == 0, early.stderr[-2000:] + named.stderr[-2000:]
+    assert early.stdout == named.stdout and json.loads(early.stdout)["n_links"] == 2
