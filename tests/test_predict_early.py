@@ -1,10 +1,10 @@
 """`spare-twin predict` measures the recording in a process of its own while it imports torch
 (`predict.early`, `measure.process`): the same answer as measured in-process, no torch on that path,
-and the process gone when the command fails or is stopped."""
+and the process gone when the command fails or is stopped. The command's JSON on both paths:
+`test_predict_any_recording.py`."""
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import subprocess
@@ -106,16 +106,3 @@ def test_a_stopped_predict_ends_its_measuring_process(sweep):
             time.sleep(0.05)
         else:
             pytest.fail(f"the measuring process {child} outlived predict")
-
-
-def test_predict_json_on_a_capture_is_the_same_with_and_without_the_process(sweep):
-    """The command's two paths: the default model (measured in the process) and the same model named
-    (measured in-process)."""
-    from spare_twin.nets.checkpoint import default_model
-
-    cmd = [sys.executable, "-m", "spare_twin", "predict", str(sweep), "--json"]
-    early = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    named = [*cmd, "--model", str(default_model("predict"))]
-    named = subprocess.run(named, capture_output=True, text=True, timeout=600)
-    assert early.returncode == named.returncode == 0, early.stderr[-2000:] + named.stderr[-2000:]
-    assert early.stdout == named.stdout and json.loads(early.stdout)["n_links"] == 2
