@@ -262,6 +262,10 @@ class ChainSpec:
 _old_key_said = False  # the note on a file from before 0.6.0 is said once per process
 
 
+#: Physical metres per paper metre where a recording or `predict` is not told the print's: ChainSpec's.
+DEFAULT_PRINT_SCALE = ChainSpec.print_scale
+
+
 def with_paper_lengths(fields: Mapping, source: str) -> dict:
     """`fields` (object.json, a configuration, ground_truth.npz's arrays, a recording's object, ...) as a
     dict with the paper-unit lengths under LENGTHS_KEY only: the one reader of the key's older name.

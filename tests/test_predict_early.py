@@ -95,12 +95,13 @@ def test_a_stopped_predict_ends_its_measuring_process(sweep):
         children = _measuring_children(p.pid)
         time.sleep(0.05)
     assert children, "the measuring process never started"
+    time.sleep(1.0)  # the command on to importing torch, the measurement under way
     p.send_signal(signal.SIGTERM)
     out, err = p.communicate(timeout=120)
     assert p.returncode == 130 and out == ""
     assert err.strip().splitlines()[-1] == "spare-twin predict: interrupted"
     for child in children:
-        for _ in range(100):
+        for _ in range(400):
             if not os.path.exists(f"/proc/{child}") or "Z" in Path(f"/proc/{child}/stat").read_text().split()[2]:
                 break
             time.sleep(0.05)

@@ -90,8 +90,10 @@ def run(args) -> int:
         # the default (profile) network's path in a process that has yet to import torch: the recording
         # measured in a process of its own meanwhile (predict.early)
         early = args.model is None and args.device == "cpu" and "torch" not in sys.modules
-        measuring = start_measuring(args.recording, args.frame, args.camera, args.print_scale, parts) if early else None
+        measuring = None
         try:
+            if early:
+                measuring = start_measuring(args.recording, args.frame, args.camera, args.print_scale, parts)
             from spare_twin.predict.run import predict_recording
 
             res = predict_recording(

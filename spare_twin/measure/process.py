@@ -24,6 +24,7 @@ process. It ends when the parent closes its pipe, or dies.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import resource
 import signal
@@ -89,7 +90,10 @@ def _peak_rss_mb() -> float:
 def _serve(requests: Connection, replies: Connection) -> None:
     """The process: answer each request, (kind, arguments), until the parent closes its end."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    replies.send(("ready",))
+    try:
+        replies.send(("ready",))
+    except OSError:  # the parent went away while this process started
+        return
     while True:
         try:
             request = requests.recv()
@@ -160,7 +164,11 @@ class MeasureProcess:
         self._recording: tuple | None = None
         self.peak_rss_mb: float | None = None
         if wait:
-            self._start()
+            try:
+                self._start()
+            except BaseException:  # Ctrl-C while it starts: it is not left behind
+                self.close(kill=True)
+                raise
 
     def _start(self) -> None:
         if self._started:
@@ -216,6 +224,9 @@ class MeasureProcess:
         said; None where it could not)."""
         if kill:
             self._proc.kill()
+            if self._recording is not None and self._recording[4]:  # its progress bar, cut mid-line:
+                with contextlib.suppress(OSError, ValueError):  # the caller's next line starts afresh
+                    print(file=sys.stderr, flush=True)
         else:
             try:
                 self._requests.send(None)

@@ -22,13 +22,10 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.capture.frames import fit_view
-from spare_twin.config import ChainSpec
+from spare_twin.config import DEFAULT_PRINT_SCALE
 from spare_twin.errors import SpareTwinError
 from spare_twin.observe.canonical import CanonicalConfig, CanonicalViews, object_frame, registered, to_rig_views
 from spare_twin.recording import Recording
-
-#: For recordings that do not carry their object: ChainSpec's default.
-DEFAULT_PRINT_SCALE = ChainSpec.print_scale
 
 
 @dataclass(frozen=True)

@@ -12,14 +12,11 @@ import math
 
 import numpy as np
 
-from spare_twin.config import MAX_MOVING_LINKS, MIN_MOVING_LINKS, ChainSpec, PartDims
+from spare_twin.config import DEFAULT_PRINT_SCALE, MAX_MOVING_LINKS, MIN_MOVING_LINKS, PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.measure.process import MeasureProcess
 from spare_twin.predict.abstain import MIN_ARC_DEG
 from spare_twin.predict.estimate import ANSWERS
-
-#: Physical metres per paper metre where `predict` is not told (`--print-scale`): ChainSpec's default.
-DEFAULT_PRINT_SCALE = ChainSpec.print_scale
 
 
 def _is_int(v) -> bool:
@@ -67,12 +64,16 @@ def _cuda_available() -> bool:
     return torch.cuda.is_available()
 
 
+def print_scale_or_default(print_scale: float | None) -> float:
+    """The print scale `predict` measures with: `print_scale` (`--print-scale`) or the default."""
+    return float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
+
+
 def measuring_request(rec_dir, frame, camera, print_scale, parts, progress: bool) -> tuple:
     """The arguments of `measure.chain.measured_chain` (after the recording) that `predict_recording`
     measures a recording's views with: the folder, the print scale (or its default), the frame, the
     camera, progress, the parts (or the defaults) and `predict.abstain.MIN_ARC_DEG`."""
-    scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
-    return str(rec_dir), scale, frame, camera, progress, parts or PartDims(), MIN_ARC_DEG
+    return str(rec_dir), print_scale_or_default(print_scale), frame, camera, progress, parts or PartDims(), MIN_ARC_DEG
 
 
 def start_measuring(rec_dir, frame=None, camera=None, print_scale=None, parts=None, progress=True) -> MeasureProcess:

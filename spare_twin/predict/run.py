@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from spare_twin.config import PartDims
+from spare_twin.config import DEFAULT_PRINT_SCALE, PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.measure.chain import measure_views, measured_chain
 from spare_twin.measure.layers import LayerMeasurement
@@ -26,7 +26,7 @@ from spare_twin.observe.chain import ChainObservation
 from spare_twin.observe.views import PosedViews
 from spare_twin.predict.abstain import MIN_ARC_DEG, hold_network, measurement_estimate, network_estimate, note_parts
 from spare_twin.predict.combine import combined
-from spare_twin.predict.early import DEFAULT_PRINT_SCALE, check_options, measuring_request
+from spare_twin.predict.early import check_options, measuring_request, print_scale_or_default
 from spare_twin.predict.estimate import FIELDS, Estimate, Prediction
 from spare_twin.predict.images import predict_images
 from spare_twin.recording import Recording
@@ -67,7 +67,7 @@ def predict_recording(
     `predict.early.start_measuring` set measuring this recording with these options (the profile path
     collects its observation and measurement, the same as its own; the caller closes it)."""
     check_options(frame, print_scale, n_links, yaw_hypotheses, device, answer, parts)
-    scale = float(print_scale) if print_scale is not None else DEFAULT_PRINT_SCALE
+    scale = print_scale_or_default(print_scale)
     parts = parts or PartDims()
     if answer == "measurement":
         _refuse(model_path, "model", "--answer measurement runs no network")
