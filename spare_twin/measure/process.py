@@ -66,11 +66,13 @@ def measure_arrays(
     return measure_views(seen, print_scale, min_arc_deg=min_arc_deg, parts=parts)
 
 
-def _measure_recording(rec_dir: str, print_scale: float, frame, camera, progress: bool, parts: PartDims, min_arc_deg):
+def measure_recording(rec_dir: str, print_scale: float, frame, camera, progress: bool, parts: PartDims, min_arc_deg):
+    """`measure.chain.measured_chain` of the recording folder `rec_dir`: what `predict` measures of a
+    recording, in its caller or in the process (`MeasureProcess.start_recording`)."""
     return measured_chain(Recording.open(rec_dir), print_scale, frame, camera, progress, parts, min_arc_deg)
 
 
-_REQUESTS = {"arrays": measure_arrays, "recording": _measure_recording}
+_REQUESTS = {"arrays": measure_arrays, "recording": measure_recording}
 
 
 def _peak_rss_mb() -> float:
@@ -202,18 +204,17 @@ class MeasureProcess:
         """`measure_arrays` run in the process."""
         return self._ask("arrays", views, frames_in_recording, print_scale, parts, min_arc_deg)
 
-    def start_recording(self, rec_dir, print_scale: float, frame, camera, progress: bool, parts, min_arc_deg) -> None:
-        """Set `measure.chain.measured_chain` of a recording folder going in the process (arguments in
-        its order, the folder opened there), without waiting for it: `recording` gives the answer."""
-        self._recording = (str(rec_dir), print_scale, frame, camera, progress, parts, min_arc_deg)
+    def start_recording(self, request: tuple) -> None:
+        """Set `measure_recording(*request)` going in the process, without waiting for it:
+        `recording(request)` gives the answer."""
+        self._recording = tuple(request)
         self._requests.send(("recording", self._recording))
 
-    def recording(self, rec_dir, print_scale: float, frame, camera, progress: bool, parts, min_arc_deg):
-        """The answer to `start_recording`, whose arguments these must be (else ValueError: a caller
+    def recording(self, request: tuple):
+        """The answer to `start_recording`, whose request this must be (else ValueError: a caller
         asking of one recording what was set going for another)."""
-        asked = (str(rec_dir), print_scale, frame, camera, progress, parts, min_arc_deg)
-        if asked != self._recording:
-            raise ValueError(f"{self.who}: measuring {self._recording}, not {asked}")
+        if tuple(request) != self._recording:
+            raise ValueError(f"{self.who}: measuring {self._recording}, not {tuple(request)}")
         self._recording = None
         self._start()
         return self._reply()

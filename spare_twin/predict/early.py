@@ -70,9 +70,9 @@ def print_scale_or_default(print_scale: float | None) -> float:
 
 
 def measuring_request(rec_dir, frame, camera, print_scale, parts, progress: bool) -> tuple:
-    """The arguments of `measure.chain.measured_chain` (after the recording) that `predict_recording`
-    measures a recording's views with: the folder, the print scale (or its default), the frame, the
-    camera, progress, the parts (or the defaults) and `predict.abstain.MIN_ARC_DEG`."""
+    """The arguments of `measure.process.measure_recording` that `predict_recording` measures a
+    recording's views with: the folder, the print scale (or its default), the frame, the camera,
+    progress, the parts (or the defaults) and `predict.abstain.MIN_ARC_DEG`."""
     return str(rec_dir), print_scale_or_default(print_scale), frame, camera, progress, parts or PartDims(), MIN_ARC_DEG
 
 
@@ -82,7 +82,7 @@ def start_measuring(rec_dir, frame=None, camera=None, print_scale=None, parts=No
     same options, and close it after (`close(kill=True)` where the caller stops early)."""
     process = MeasureProcess("predict: the measuring process", wait=False)
     try:
-        process.start_recording(*measuring_request(rec_dir, frame, camera, print_scale, parts, progress))
+        process.start_recording(measuring_request(rec_dir, frame, camera, print_scale, parts, progress))
     except BaseException:
         process.close(kill=True)
         raise

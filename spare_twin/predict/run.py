@@ -17,9 +17,9 @@ import numpy as np
 
 from spare_twin.config import DEFAULT_PRINT_SCALE, PartDims
 from spare_twin.errors import SpareTwinError
-from spare_twin.measure.chain import measure_views, measured_chain
+from spare_twin.measure.chain import measure_views
 from spare_twin.measure.layers import LayerMeasurement
-from spare_twin.measure.process import MeasureProcess
+from spare_twin.measure.process import MeasureProcess, measure_recording
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.registry import decode
 from spare_twin.observe.chain import ChainObservation
@@ -29,7 +29,6 @@ from spare_twin.predict.combine import combined
 from spare_twin.predict.early import check_options, measuring_request, print_scale_or_default
 from spare_twin.predict.estimate import FIELDS, Estimate, Prediction
 from spare_twin.predict.images import predict_images
-from spare_twin.recording import Recording
 
 
 def _refuse(value, name: str, why: str) -> None:
@@ -82,10 +81,7 @@ def predict_recording(
         why = "applies to image networks only (the profile network reads any capture)"
         _refuse(outside_rig or None, "outside_rig", why)
         request = measuring_request(rec_dir, frame, camera, print_scale, parts, progress)
-        if measuring is not None:
-            obs, m = measuring.recording(*request)
-        else:
-            obs, m = measured_chain(Recording.open(rec_dir), *request[1:])
+        obs, m = measuring.recording(request) if measuring is not None else measure_recording(*request)
         name = str(model_path) if model_path else None
         return answer_of(obs, m, model, net, name, answer, scale, device, rec_dir, parts)
     if net.arch != "conv3d_per_n":
