@@ -5,6 +5,7 @@ failing command says one line."""
 
 from __future__ import annotations
 
+import builtins
 import contextlib
 import ctypes
 import io
@@ -20,25 +21,61 @@ import warnings
 from collections.abc import Iterator
 
 
-def _interrupt(signum, frame):
-    raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+class _ImportsFinishFirst:
+    """`builtins.__import__` wrapped so that an interrupt arriving in the main thread while an `import`
+    statement runs is raised once the outermost one has finished. Raised inside an extension's
+    initialisation (torch's C++ runs Python code through pybind11 and PyRun_String), a KeyboardInterrupt
+    makes CPython exit killed by SIGINT after the command has already returned 130, or abort (SIGABRT):
+    both were seen when `predict` was stopped while it imported torch. An import takes at most a few
+    seconds, so a stop waits at most that long."""
+
+    def __init__(self, original) -> None:
+        self.original = original
+        self.depth = 0
+        self.pending: int | None = None
+
+    def __call__(self, *args, **kwargs):
+        if threading.current_thread() is not threading.main_thread():
+            return self.original(*args, **kwargs)
+        self.depth += 1
+        try:
+            return self.original(*args, **kwargs)
+        finally:
+            self.depth -= 1
+            if self.depth == 0 and self.pending is not None:
+                signum, self.pending = self.pending, None
+                raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
+
+    def interrupt(self, signum, frame) -> None:
+        if self.depth:
+            self.pending = signum
+            return
+        raise KeyboardInterrupt(f"signal {signal.Signals(signum).name}")
 
 
 @contextlib.contextmanager
-def signals_as_interrupts(signals: tuple[int, ...] = (signal.SIGTERM, signal.SIGHUP)) -> Iterator[None]:
-    """SIGTERM and SIGHUP raise KeyboardInterrupt in the main thread while the block runs, so the
-    clean-ups of `finally` and `writing` run as on Ctrl-C. A signal set to be ignored (nohup) stays
-    ignored; elsewhere than in the main thread this does nothing (Python delivers signals there only)."""
+def signals_as_interrupts(
+    signals: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP),
+) -> Iterator[None]:
+    """SIGINT, SIGTERM and SIGHUP raise KeyboardInterrupt in the main thread while the block runs, so
+    the clean-ups of `finally` and `writing` run as on Ctrl-C, but never inside an `import` statement:
+    there it waits for the import to finish (`_ImportsFinishFirst`). A signal set to be ignored (nohup)
+    stays ignored; elsewhere than in the main thread this does nothing (Python delivers signals there
+    only)."""
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    imports = _ImportsFinishFirst(builtins.__import__)
     previous = {}
     for s in signals:
         if signal.getsignal(s) is not signal.SIG_IGN:
-            previous[s] = signal.signal(s, _interrupt)
+            previous[s] = signal.signal(s, imports.interrupt)
+    builtins.__import__ = imports
     try:
         yield
     finally:
+        if builtins.__import__ is imports:
+            builtins.__import__ = imports.original
         for s, handler in previous.items():
             signal.signal(s, signal.SIG_DFL if handler is None else handler)
 

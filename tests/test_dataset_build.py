@@ -3,6 +3,7 @@
 import hashlib
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -175,6 +176,18 @@ def test_a_run_killed_before_its_settings_were_written_resumes(tmp_path):
     (cut / ".lock").write_text("999999999")  # a writer that is gone
     generate_dataset(cut, 2, seed=5, workers=1, cfg=CFG, progress=False)
     assert _hashes(cut) == _hashes(ref)
+    # killed as it wrote dataset.json (an empty lock is one killed as it wrote the lock), then later
+    # killed as it wrote the manifest: each rerun resumes, and the temporaries go
+    for left in ([".lock", ".dataset.json.k3x_9q1z.tmp"], [".manifest.json.abcd1234.tmp"]):
+        if ".lock" in left:
+            shutil.rmtree(cut)
+            cut.mkdir()
+        for name in left:
+            (cut / name).write_text("" if name == ".lock" else '{"format": "spare-twin-d')
+        generate_dataset(cut, 2, seed=5, workers=1, cfg=CFG, progress=False)
+        assert _hashes(cut) == _hashes(ref) and not list(cut.glob(".*")), left
+        assert sorted(p.name for p in cut.iterdir()) == sorted(p.name for p in ref.iterdir())
+        assert all((cut / f).read_bytes() == (ref / f).read_bytes() for f in ("dataset.json", "manifest.json"))
     foreign.mkdir()
     (foreign / ".lock").write_text("999999999")
     (foreign / "sequences").mkdir()

@@ -1,6 +1,7 @@
 """The output rule (spare_twin.output): what may be written over, write-beside-then-swap, clean-up after
 killed runs, signals as interrupts, and one JSON object alone on stdout."""
 
+import builtins
 import hashlib
 import json
 import os
@@ -403,6 +404,24 @@ def test_signals_as_interrupts_restores_handlers():
             os.kill(os.getpid(), signal.SIGHUP)
     finally:
         signal.signal(signal.SIGHUP, old)
+
+
+def test_an_interrupt_during_an_import_lands_once_the_import_has_finished(tmp_path, monkeypatch):
+    """A stop inside an `import` (an extension's initialisation, as torch's) is raised after the outermost
+    import statement returns: the module imported whole, then KeyboardInterrupt; the import hook goes
+    with the block."""
+    (tmp_path / "slow_import_probe.py").write_text(
+        "import os, signal, time\nos.kill(os.getpid(), signal.SIGTERM)\ntime.sleep(0.3)\nFINISHED = True\n"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    before = builtins.__import__
+    with pytest.raises(KeyboardInterrupt, match="SIGTERM"), terminal.signals_as_interrupts():
+        import slow_import_probe  # noqa: F401
+    assert sys.modules.pop("slow_import_probe").FINISHED
+    assert builtins.__import__ is before
+    with pytest.raises(KeyboardInterrupt, match="SIGINT"), terminal.signals_as_interrupts():
+        os.kill(os.getpid(), signal.SIGINT)  # outside an import: at once
+        time.sleep(1)
 
 
 # -- one JSON object on stdout --------------------------------------------------------------------

@@ -17,6 +17,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass
@@ -91,15 +92,21 @@ class _Lock:
         self.path.unlink(missing_ok=True)
 
 
+#: What `write_json_atomic` leaves of the folder's own JSON files when a run is killed as it writes them.
+_OWN_TEMPORARIES = re.compile(r"\.(dataset|manifest)\.json\.[A-Za-z0-9_]+\.tmp")
+
+
 def _ours_or_empty(root: Path) -> bool:
-    """The folder is a dataset, empty, or holds only the lock of a run killed before it wrote its
-    dataset.json (a file named .lock holding a process token): those resume; anything else is the user's."""
+    """The folder is a dataset, empty, or holds only what a run killed before its dataset.json was in
+    place leaves (a file named .lock holding a process token, a temporary dataset.json): those resume;
+    anything else is the user's."""
     if (root / "dataset.json").exists():
         return True
     entries = list(root.iterdir())
-    if not entries:
-        return True
-    return [p.name for p in entries] == [".lock"] and _lock_owner(entries[0]) is not None
+    return all(
+        (p.name == ".lock" and _lock_owner(p) is not None) or (_OWN_TEMPORARIES.fullmatch(p.name) and p.is_file())
+        for p in entries
+    )
 
 
 def _check_settings(root: Path, seed: int, cfg: GenConfig, create: bool = True) -> None:
@@ -284,8 +291,9 @@ def _generate(root: Path, instances, seed, workers, cfg: GenConfig, progress, ba
     with _Lock(root):
         _check_settings(root, seed, cfg)  # dataset.json first: whatever else is here, the folder is a dataset
         seq_dir.mkdir(exist_ok=True)
-        for stale in seq_dir.glob(".seq-*.tmp*"):  # left by a killed run
-            stale.unlink(missing_ok=True)
+        stale = [p for p in root.iterdir() if _OWN_TEMPORARIES.fullmatch(p.name) and p.is_file()]
+        for path in [*stale, *seq_dir.glob(".seq-*.tmp*")]:  # left by a killed run
+            path.unlink(missing_ok=True)
         todo = _missing(seq_dir, instances, cfg, say=True)
         if backend == "local":  # more processes than cores or than sequences only cost memory and start-up
             workers = cap_workers(workers or 1, max(1, len(todo)))
