@@ -4,7 +4,8 @@ reads, get `n_links: null` with a reason, from the network's estimate as from th
 
 The frames are real RealSense views of the APC shelf bin (tests/data/README.md): before, `predict`
 answered 6 links (p = 0.956) on frame 15, 6 (p = 0.9998) on frame 113 and 4 on frame 61. The
-measured figures over all 50 frames and every run of 2-10 are in docs/observe.md."""
+measured figures over all 50 frames and every run of 2-10 are in docs/observe.md; the test reads
+every frame and 288 of the 455 runs."""
 
 from __future__ import annotations
 
@@ -48,15 +49,18 @@ def profile_model():
 
 def test_no_answer_on_any_frame_or_short_run_of_the_shelf(profile_model):
     """`predict`'s core on the frames' posed views in memory, as for a recording of just those frames:
-    every single frame of the shelf and every run of 2..10 consecutive frames (455 in all) gets no
-    count, from the combined answer, the network's estimate and the measurement alike."""
+    every single frame of the shelf, every run of 2..10 consecutive frames through a frame once
+    answered, and every other run of each length (starting on an even frame: neighbouring runs share
+    all but one frame), 288 of the 455 runs in all, gets no count, from the combined answer, the
+    network's estimate and the measurement alike. All 455: docs/observe.md."""
     from spare_twin.observe.views import PosedViews
     from spare_twin.predict.run import predict_views
 
     model, net, name = profile_model
     assert len(FRAMES) == 50 and set(ONCE_ANSWERED) <= set(FRAMES)
     views = {f: _view(f) for f in FRAMES}
-    runs = [FRAMES[i : i + k] for k in range(1, 11) for i in range(len(FRAMES) - k + 1)]
+    every = [FRAMES[i : i + k] for k in range(1, 11) for i in range(len(FRAMES) - k + 1)]
+    runs = [r for r in every if len(r) == 1 or FRAMES.index(r[0]) % 2 == 0 or set(r) & set(ONCE_ANSWERED)]
     answered = []
     for frames in runs:
         p = predict_views(PosedViews(tuple(views[f] for f in frames), "sweep"), model, net, name)
@@ -65,7 +69,7 @@ def test_no_answer_on_any_frame_or_short_run_of_the_shelf(profile_model):
         ok &= p.measurement.n_links is None and bool(p.measurement.reason)
         if not ok:
             answered.append((frames, p.to_json()))
-    assert len(runs) == 455 and not answered, answered[:3]
+    assert len(every) == 455 and len(runs) == 288 and not answered, answered[:3]
 
 
 def test_a_single_real_frame_end_to_end(tmp_path, capsys):

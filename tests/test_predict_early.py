@@ -6,6 +6,7 @@ and the process gone when the command fails or is stopped. The command's JSON on
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -41,17 +42,32 @@ def test_a_measuring_process_serves_only_the_options_it_was_started_with(sweep):
     assert measuring._proc.returncode == -signal.SIGKILL
 
 
-def test_the_processs_one_line_error_is_predicts(tmp_path):
+def test_a_bad_folder_is_refused_before_the_process_starts(tmp_path, monkeypatch):
+    """No recording, or a frame number it cannot take: the in-process error, before any process starts."""
     (tmp_path / "notes.txt").write_text("not a recording\n")
     with pytest.raises(SpareTwinError) as here:
         predict_recording(tmp_path, progress=False)
-    measuring = start_measuring(tmp_path, progress=False)
+    monkeypatch.setattr("spare_twin.predict.early.MeasureProcess", None)  # started, it would fail otherwise
+    with pytest.raises(SpareTwinError) as there:
+        start_measuring(tmp_path, progress=False)
+    assert str(there.value) == str(here.value) and "recording.json" in str(here.value)
+
+
+def test_the_processs_one_line_error_is_predicts(sweep, tmp_path):
+    """A frame that does not read, found only by the process: the same error as in-process."""
+    rec = tmp_path / "rec"
+    shutil.copytree(sweep, rec)
+    [depth] = list((rec / "cameras").glob("*/depth"))
+    sorted(depth.iterdir())[3].write_bytes(b"not a PNG")
+    with pytest.raises(SpareTwinError) as here:
+        predict_recording(rec, progress=False)
+    measuring = start_measuring(rec, progress=False)
     try:
         with pytest.raises(SpareTwinError) as there:
-            predict_recording(tmp_path, progress=False, measuring=measuring)
+            predict_recording(rec, progress=False, measuring=measuring)
     finally:
         measuring.close()
-    assert str(there.value) == str(here.value) and "recording.json" in str(here.value)
+    assert str(there.value) == str(here.value) and "depth" in str(here.value), here.value
 
 
 def test_the_measuring_path_imports_no_torch():

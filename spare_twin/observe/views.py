@@ -105,6 +105,27 @@ def _registered(frames: list[RGBDFrame], progress: bool, tracked_poses=None) -> 
     return _posed(frames, reg.poses), time.perf_counter() - t0, reg.reference_kept
 
 
+def check_views_request(rec: Recording, frame: int | None, camera: str | None, max_frames: int = 60) -> None:
+    """`recording_views`' refusals that need no frame read: a frame out of range, cameras without
+    poses, an unknown camera, a frame number for a sweep, one frame without a pose. `predict` checks
+    them before it sets its measuring process going (`predict.early`)."""
+    if frame is not None and not 0 <= frame < rec.n_frames:
+        raise SpareTwinError(f"frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
+    if len(rec.cameras) > 1 and camera is None:
+        unposed = sum(rec.camera_poses(c.name) is None for c in rec.cameras)
+        if unposed:
+            raise SpareTwinError(f"{rec.root}: {unposed} of its cameras have no poses")
+        return
+    cam = rec.camera(camera or rec.cameras[0].name)
+    if frame is not None:  # a sweep is read whole: a frame number would be silently ignored
+        raise SpareTwinError(
+            f"frame {frame}: applies to a recording from several posed cameras (every camera at that time "
+            f"step); camera {cam.name} is read as a sweep, {min(max_frames, rec.n_frames)} of its frames"
+        )
+    if rec.camera_poses(cam.name) is None and min(max_frames, rec.n_frames) < 2:
+        raise SpareTwinError(f"{rec.root}: one frame and no camera pose; nothing to register")
+
+
 def recording_views(
     rec: Recording,
     frame: int | None = None,
@@ -114,12 +135,9 @@ def recording_views(
 ) -> PosedViews:
     """The posed views of a recording; see the module doc. `frame` applies to several posed cameras
     only, `camera` picks one camera to read as a sweep."""
-    if frame is not None and not 0 <= frame < rec.n_frames:
-        raise SpareTwinError(f"frame {frame}: the recording has frames 0..{rec.n_frames - 1}")
+    check_views_request(rec, frame, camera, max_frames)
     posed = [c for c in rec.cameras if rec.camera_poses(c.name) is not None]
     if len(rec.cameras) > 1 and camera is None:
-        if len(posed) < len(rec.cameras):
-            raise SpareTwinError(f"{rec.root}: {len(rec.cameras) - len(posed)} of its cameras have no poses")
         f = rec.n_frames // 2 if frame is None else frame
         views = [
             without_flying_pixels(
@@ -129,15 +147,8 @@ def recording_views(
         ]
         return PosedViews(tuple(views), "cameras", frames_in_recording=rec.n_frames)
     cam = rec.camera(camera or rec.cameras[0].name)
-    if frame is not None:  # a sweep is read whole: a frame number would be silently ignored
-        raise SpareTwinError(
-            f"frame {frame}: applies to a recording from several posed cameras (every camera at that time "
-            f"step); camera {cam.name} is read as a sweep, {min(max_frames, rec.n_frames)} of its frames"
-        )
     picks = np.unique(np.linspace(0, rec.n_frames - 1, min(max_frames, rec.n_frames)).round().astype(int)).tolist()
     poses = rec.camera_poses(cam.name)
-    if poses is None and len(picks) < 2:
-        raise SpareTwinError(f"{rec.root}: one frame and no camera pose; nothing to register")
     frames = side_by_side(_without_flying_pixels, load_frames(rec, cam.name, picks))
     tracked = None if poses is None else tuple(np.asarray(poses[f], np.float64) for f in picks)
     try:

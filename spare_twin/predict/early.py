@@ -15,8 +15,10 @@ import numpy as np
 from spare_twin.config import DEFAULT_PRINT_SCALE, MAX_MOVING_LINKS, MIN_MOVING_LINKS, PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.measure.process import MeasureProcess
+from spare_twin.observe.views import check_views_request
 from spare_twin.predict.abstain import MIN_ARC_DEG
 from spare_twin.predict.estimate import ANSWERS
+from spare_twin.recording import Recording
 
 
 def _is_int(v) -> bool:
@@ -79,7 +81,10 @@ def measuring_request(rec_dir, frame, camera, print_scale, parts, progress: bool
 def start_measuring(rec_dir, frame=None, camera=None, print_scale=None, parts=None, progress=True) -> MeasureProcess:
     """The measurement `predict_recording` would make of `rec_dir` with these options, set going in a
     process of its own (`measure.process`); give it to `predict_recording` as `measuring`, with the
-    same options, and close it after (`close(kill=True)` where the caller stops early)."""
+    same options, and close it after (`close(kill=True)` where the caller stops early). A folder that is
+    no recording, or options it cannot take, are refused here, before the process starts: an error
+    the process gave would only be collected after the command had imported torch (4-5 s)."""
+    check_views_request(Recording.open(rec_dir), frame, camera)
     process = MeasureProcess("predict: the measuring process", wait=False)
     try:
         process.start_recording(measuring_request(rec_dir, frame, camera, print_scale, parts, progress))
