@@ -136,14 +136,13 @@ def recording_views(
     """The posed views of a recording; see the module doc. `frame` applies to several posed cameras
     only, `camera` picks one camera to read as a sweep."""
     check_views_request(rec, frame, camera, max_frames)
-    posed = [c for c in rec.cameras if rec.camera_poses(c.name) is not None]
-    if len(rec.cameras) > 1 and camera is None:
+    if len(rec.cameras) > 1 and camera is None:  # every camera posed (checked)
         f = rec.n_frames // 2 if frame is None else frame
         views = [
             without_flying_pixels(
                 PosedView(rec.depth_m(c.name, f), c.K, rec.T_world_camera(c.name, f), rec.color(c.name, f))
             )
-            for c in posed
+            for c in rec.cameras
         ]
         return PosedViews(tuple(views), "cameras", frames_in_recording=rec.n_frames)
     cam = rec.camera(camera or rec.cameras[0].name)
