@@ -356,6 +356,32 @@ def test_views_read_side_by_side_give_the_same_bytes_as_one_by_one(handheld_rec,
     assert len(one[0]) > 1000
 
 
+@pytest.mark.parametrize("capture", ["sweep", "handheld_rec"])
+def test_registered_and_measured_side_by_side_the_same_bytes_as_one_by_one(capture, request, monkeypatch):
+    """Registration's independent edges (every loop edge; every neighbouring pair of a tracked sweep)
+    and a sweep's two readings (as registered, and brought into register on the object) run side by
+    side in threads; each is computed on its own, so a sweep registered here (`sweep`) and a tracked
+    one (`handheld_rec`) give the same bytes with one thread as with every core."""
+    from spare_twin.threads import cores
+    from spare_twin.validate import usable_cores
+
+    if usable_cores() < 2:
+        pytest.skip("one core: nothing runs side by side")
+    rec = Recording.open(request.getfixturevalue(capture))
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    assert cores() == 1
+    one = measured_chain(rec, 0.08)
+    monkeypatch.setenv("OMP_NUM_THREADS", "2")
+    assert cores() == 2
+    many = measured_chain(rec, 0.08)
+    (seen_one, measured_one), (seen_many, measured_many) = one, many
+    assert seen_one.source == seen_many.source and "register" in seen_one.source
+    assert seen_one.object.points_m.tobytes() == seen_many.object.points_m.tobytes()
+    assert seen_one.profile.image.tobytes() == seen_many.profile.image.tobytes()
+    assert measured_one.n_links == measured_many.n_links == 2
+    assert measured_one.lengths_pu.tobytes() == measured_many.lengths_pu.tobytes()
+
+
 def test_clutter_beside_the_chain_is_apart_from_it_in_any_world_frame():
     """Objects are split by exact distances, not on a grid: a plate and a box 2 cm apart (bench
     clutter stands 3 cm off and more) are two objects however the world's axes lie, and parts 8 mm

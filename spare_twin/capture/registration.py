@@ -289,33 +289,41 @@ def register_frames(
             raise SpareTwinError(f"registration: init poses have shape {init_poses.shape}, expected ({n}, 4, 4)")
         chain = [invert(init_poses[0]) @ P for P in init_poses]
     edges: list[Edge] = []
-    motion = np.eye(4)
-    for a in range(n - 1):
-        if init_poses is not None:
-            guesses = [invert(chain[a]) @ chain[a + 1]]
-        else:  # the previous pair's motion, then none
-            guesses = [motion, np.eye(4)] if a else [np.eye(4)]
-        e = R.edge(a + 1, a, guesses, neighbours=True)
-        bar.update(1)
-        if e is None:
-            if init_poses is None:
+    if init_poses is not None:  # each pair guessed from the references alone: side by side
+
+        def referenced_edge(a: int) -> Edge | None:
+            e = R.edge(a + 1, a, [invert(chain[a]) @ chain[a + 1]], neighbours=True)
+            bar.update(1)
+            return e
+
+        edges = [e for e in side_by_side(referenced_edge, range(n - 1)) if e is not None]
+    else:  # each pair guessed from the previous pair's motion, then none: in turn
+        motion = np.eye(4)
+        for a in range(n - 1):
+            e = R.edge(a + 1, a, [motion, np.eye(4)] if a else [np.eye(4)], neighbours=True)
+            bar.update(1)
+            if e is None:
                 raise SpareTwinError(
                     f"registration: frames {a} and {a + 1} do not overlap (ICP fitness below "
                     f"{cfg.min_fitness}); record more slowly or lower voxel_m"
                 )
-            continue
-        edges.append(e)
-        motion = e.T_target_source
-    if init_poses is None:  # the chain of the neighbours' motions, their start smoothed
-        chain = _smooth_start(R, edges, cfg)
+            edges.append(e)
+            motion = e.T_target_source
+        chain = _smooth_start(R, edges, cfg)  # the chain of the neighbours' motions, their start smoothed
     loops = _loop_pairs(clouds, chain, cfg)
     bar.total += len(loops)
     bar.refresh()
-    for s, t in loops:
+    for c in clouds:  # built once here, not raced for by the threads below
+        c.tree
+
+    def loop_edge(pair: tuple[int, int]) -> Edge | None:
+        s, t = pair
         e = R.edge(s, t, [invert(chain[t]) @ chain[s]], neighbours=False)
         bar.update(1)
-        if e is not None:
-            edges.append(e)
+        return e
+
+    # each loop edge starts from the chain alone, so they are independent: side by side, in their order
+    edges += [e for e in side_by_side(loop_edge, loops) if e is not None]
     bar.close()
     seconds["edges"] = time.perf_counter() - t1
 
