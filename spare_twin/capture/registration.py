@@ -314,7 +314,7 @@ def register_frames(
     bar.total += len(loops)
     bar.refresh()
     for c in clouds:  # built once here, not raced for by the threads below
-        c.tree
+        _ = c.tree
 
     def loop_edge(pair: tuple[int, int]) -> Edge | None:
         s, t = pair
