@@ -71,17 +71,25 @@ def test_the_processs_one_line_error_is_predicts(sweep, tmp_path):
 
 
 def test_the_measuring_path_imports_no_torch():
-    """What the command imports before it sets the measurement going, and the process itself."""
+    """What the command imports before it sets the measurement going, and the process itself; and the
+    process's caller's side, which `spare-twin predict` imports first of all to start the process while
+    it imports the rest, imports nothing heavy."""
     probe = (
-        "import sys, spare_twin.commands.predict, spare_twin.predict.early, spare_twin.measure.process;"
+        "import sys, spare_twin.commands.predict, spare_twin.predict.early, spare_twin.measure.serve;"
         "print('torch' in sys.modules)"
     )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "False"
+    probe = (
+        "import sys, spare_twin.measure.process;"
+        "print([m for m in ('torch', 'scipy', 'spare_twin.measure.chain', 'spare_twin.observe') if m in sys.modules])"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
 
 
 def _measuring_children(pid: int) -> list[int]:
-    """Processes running `spare_twin.measure.process` whose parent is `pid`."""
+    """Processes running `spare_twin.measure.serve` whose parent is `pid`."""
     found = []
     for d in Path("/proc").iterdir():
         if not d.name.isdigit():
@@ -91,7 +99,7 @@ def _measuring_children(pid: int) -> list[int]:
             cmdline = (d / "cmdline").read_bytes()
         except OSError:
             continue
-        if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"spare_twin.measure.process" in cmdline:
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid and b"spare_twin.measure.serve" in cmdline:
             found.append(int(d.name))
     return found
 

@@ -21,7 +21,8 @@ import numpy as np
 from spare_twin.config import PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.live.track import PlacedFrame
-from spare_twin.measure.process import MeasureProcess, measure_arrays
+from spare_twin.measure.process import MeasureProcess
+from spare_twin.measure.serve import measure_arrays
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.predict.abstain import MIN_ARC_DEG
 from spare_twin.predict.early import check_options

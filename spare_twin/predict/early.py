@@ -78,16 +78,24 @@ def measuring_request(rec_dir, frame, camera, print_scale, parts, progress: bool
     return str(rec_dir), print_scale_or_default(print_scale), frame, camera, progress, parts or PartDims(), MIN_ARC_DEG
 
 
-def start_measuring(rec_dir, frame=None, camera=None, print_scale=None, parts=None, progress=True) -> MeasureProcess:
+def start_measuring(
+    rec_dir, frame=None, camera=None, print_scale=None, parts=None, progress=True, process: MeasureProcess | None = None
+) -> MeasureProcess:
     """The measurement `predict_recording` would make of `rec_dir` with these options, set going in a
-    process of its own (`measure.process`); give it to `predict_recording` as `measuring`, with the
-    same options, and close it after (`close(kill=True)` where the caller stops early). A folder that is
-    no recording, or options it cannot take, are refused here, before the process starts: an error
-    the process gave would only be collected after the command had imported torch (4-5 s)."""
+    process of its own (`measure.process`), which this returns; give it to `predict_recording` as
+    `measuring`, with the same options, and close it after (`close(kill=True)` where the caller stops
+    early). `process`: one the caller started already and has not asked anything (`spare-twin predict`
+    starts it first of all), and closes itself. A folder that is no recording, or options it cannot
+    take, are refused here, before the process is started or asked: an error the process gave would
+    only be collected after the command had imported torch (4-5 s)."""
     check_views_request(Recording.open(rec_dir), frame, camera)
+    request = measuring_request(rec_dir, frame, camera, print_scale, parts, progress)
+    if process is not None:
+        process.start_recording(request)
+        return process
     process = MeasureProcess("predict: the measuring process", wait=False)
     try:
-        process.start_recording(measuring_request(rec_dir, frame, camera, print_scale, parts, progress))
+        process.start_recording(request)
     except BaseException:
         process.close(kill=True)
         raise

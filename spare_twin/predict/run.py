@@ -19,7 +19,8 @@ from spare_twin.config import DEFAULT_PRINT_SCALE, PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.measure.chain import measure_views
 from spare_twin.measure.layers import LayerMeasurement
-from spare_twin.measure.process import MeasureProcess, measure_recording
+from spare_twin.measure.process import MeasureProcess
+from spare_twin.measure.serve import measure_recording
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.registry import decode
 from spare_twin.observe.chain import ChainObservation
