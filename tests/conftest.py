@@ -25,21 +25,25 @@ import spare_twin  # noqa: F401  (sets the BLAS threads, before anything loads n
 
 REPO = Path(__file__).resolve().parents[1]
 
-#: The files that take a minute or more, slowest first (seconds summed over their tests at release 0.6.11,
-#: on the 2-core machine: 127, 82, 81, 77, 73, 72, 63, 62, 60, 56). pytest-xdist hands whole files out in
-#: collection order (`--no-loadscope-reorder`); its own order puts files with few tests last, so these ran
-#: at the end on one worker while the other stood idle.
+#: The files that take half a minute or more, slowest first (seconds summed over their tests at release
+#: 0.6.15, on the 2-core machine: 99, 94, 83, 74, 69, 68, 63, 53, 51, 38, 37, 35, 33, 30). pytest-xdist
+#: hands whole files out in collection order (`--no-loadscope-reorder`); its own order puts files with
+#: few tests last, so a slow one ran at the end on one worker while the other stood idle.
 SLOWEST_FILES = (
     "test_interrupt.py",
-    "test_readme.py",
     "test_nets_train.py",
     "test_profile_net.py",
-    "test_live.py",
-    "test_bad_input.py",
+    "test_readme.py",
     "test_demo.py",
+    "test_live.py",
     "test_grey_lift.py",
-    "test_abstain.py",
+    "test_bad_input.py",
     "test_scale_out.py",
+    "test_abstain.py",
+    "test_articulated.py",
+    "test_observe.py",
+    "test_train_distributed.py",
+    "test_length_keys.py",
 )
 
 

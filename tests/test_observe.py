@@ -356,30 +356,36 @@ def test_views_read_side_by_side_give_the_same_bytes_as_one_by_one(handheld_rec,
     assert len(one[0]) > 1000
 
 
-@pytest.mark.parametrize("capture", ["sweep", "handheld_rec"])
-def test_registered_and_measured_side_by_side_the_same_bytes_as_one_by_one(capture, request, monkeypatch):
+def test_registered_and_measured_side_by_side_the_same_bytes_as_one_by_one(sweep, handheld_rec, monkeypatch):
     """Registration's independent edges (every loop edge; every neighbouring pair of a tracked sweep)
     and a sweep's two readings (as registered, and brought into register on the object) run side by
-    side in threads; each is computed on its own, so a sweep registered here (`sweep`) and a tracked
-    one (`handheld_rec`) give the same bytes with one thread as with every core."""
+    side in threads; each is computed on its own, so a sweep registered here (`sweep`: its loop edges
+    and its two readings) and a tracked one's registration (`handheld_rec`: its neighbouring pairs)
+    give the same bytes with one thread as with two."""
+    from spare_twin.capture.frames import load_frames
+    from spare_twin.capture.registration import register_frames
+    from spare_twin.observe.views import TRACKED_REGISTRATION
     from spare_twin.threads import cores
     from spare_twin.validate import usable_cores
 
     if usable_cores() < 2:
         pytest.skip("one core: nothing runs side by side")
-    rec = Recording.open(request.getfixturevalue(capture))
-    monkeypatch.setenv("OMP_NUM_THREADS", "1")
-    assert cores() == 1
-    one = measured_chain(rec, 0.08)
-    monkeypatch.setenv("OMP_NUM_THREADS", "2")
-    assert cores() == 2
-    many = measured_chain(rec, 0.08)
-    (seen_one, measured_one), (seen_many, measured_many) = one, many
-    assert seen_one.source == seen_many.source and "register" in seen_one.source
+    swept, tracked = Recording.open(sweep), Recording.open(handheld_rec)
+    cam = tracked.cameras[0].name
+    frames, poses = load_frames(tracked, cam, list(range(tracked.n_frames))), tracked.camera_poses(cam)
+    results = []
+    for threads in ("1", "2"):
+        monkeypatch.setenv("OMP_NUM_THREADS", threads)
+        assert cores() == int(threads)
+        results.append((measured_chain(swept, 0.08), register_frames(frames, TRACKED_REGISTRATION, poses, False)))
+    ((seen_one, measured_one), reg_one), ((seen_many, measured_many), reg_many) = results
+    assert seen_one.source == seen_many.source and seen_one.source.startswith("sweep, registered")
     assert seen_one.object.points_m.tobytes() == seen_many.object.points_m.tobytes()
     assert seen_one.profile.image.tobytes() == seen_many.profile.image.tobytes()
     assert measured_one.n_links == measured_many.n_links == 2
     assert measured_one.lengths_pu.tobytes() == measured_many.lengths_pu.tobytes()
+    assert len(reg_one.edges) == len(reg_many.edges) >= tracked.n_frames - 1
+    assert reg_one.poses.tobytes() == reg_many.poses.tobytes()
 
 
 def test_clutter_beside_the_chain_is_apart_from_it_in_any_world_frame():

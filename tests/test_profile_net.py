@@ -32,7 +32,7 @@ def run(small_data, tmp_path_factory):
 
     out = tmp_path_factory.mktemp("profile_run") / "run"
     argv = ["train", "--preset", "profile-depth-multitask", "--data", str(small_data), "--out", str(out)]
-    assert main([*argv, "--epochs", "25", "--batch-size", "8", "--seed", "1"]) == 0
+    assert main([*argv, "--epochs", "12", "--batch-size", "8", "--seed", "1"]) == 0
     return out
 
 
@@ -49,7 +49,7 @@ def test_samples_are_deterministic_and_labelled(small_data):
 def test_a_short_training_run_learns(run, small_data):
     """The profile network trains through the one training loop (nets.train) like every network."""
     history = json.loads((run / "history.json").read_text())
-    assert len(history) == 25
+    assert len(history) == 12
     assert history[-1]["train_loss"] < 0.5 * history[0]["train_loss"]
     for name in ("last.pt", "best.pt", "model.pt", "learning_curve.png", "MODEL_CARD.md", "samples-val.npz"):
         assert (run / name).is_file(), name
