@@ -133,7 +133,9 @@ def test_fine_tune_starts_from_a_checkpoint(trained, synthetic_data, tmp_path):
     from spare_twin.nets.train import train
 
     source = trained / "model.pt"
-    cfg = {"net": TINY["net"], "train": {**TINY["train"], "epochs": 1, "lr": 1e-12, "init_from": str(source)}}
+    # one short epoch (the start is what is checked), then the whole validation split
+    train_cfg = {**TINY["train"], "epochs": 1, "samples_per_epoch": 16, "lr": 1e-12, "init_from": str(source)}
+    cfg = {"net": TINY["net"], "train": train_cfg}
     train(resolve("geo-depth-mv-multitask", cfg), synthetic_data, tmp_path / "ft", progress=False)
     start, tuned = ckpt.load(source), ckpt.load(tmp_path / "ft" / "model.pt")
     assert tuned["meta"]["init_from"]["path"] == str(source)
