@@ -153,3 +153,15 @@ def test_handheld_samples_follow_the_rig_samples_in_a_training_split(tmp_path):
     ds = ObservedProfiles([tmp_path / "rig"], "train", cache, False, (hh,), 2)
     assert [int(ds[i]["n_links"]) for i in range(len(ds))] == [6, 6, 5, 5] + [2, 3] * 4
     assert ds.rejected == 7 and float(ds[0]["x"].mean()) == 1.0 and float(ds[4]["x"][0, 0, 0]) == 1.0
+
+
+def test_the_validation_split_holds_every_count_alike():
+    """Every tenth round of counts is validation: of 120 objects, two chains of each count 1..6 (every
+    tenth object would have given only 2-, 4- and 6-link chains: an object's count follows its index)."""
+    from spare_twin.bench.handheld_samples import HandheldConfig, split_of
+
+    rows = HandheldConfig(objects=120).settings()
+    counts = [c.n_links for c in rows]
+    assert counts[:12] == [1, 2, 3, 4, 5, 6] * 2
+    val = sorted(c for i, c in enumerate(counts) if split_of(i) == "val")
+    assert val == [1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6, 6]

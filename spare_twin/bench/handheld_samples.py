@@ -16,7 +16,7 @@ Seeds: object i of `--seed S` is chain seed `HANDHELD_SEED_BASE + S * SEED_STRID
 bench's ranges (all below 1,000,000), so no held-out capture is ever trained on. Its capture settings
 are row i of the bench's settings table (`bench.settings.capture_settings`) drawn for blocks of
 `SETTINGS_BLOCK` objects, so they do not depend on how many objects are asked for. Every
-`VAL_EVERY`-th object is validation.
+`VAL_EVERY`-th round of counts (six objects, one of each count) is validation.
 
 Labels: the count, the 7-slot nominal lengths (paper units: the print's scale error is not in them, as
 `predict` is scored on nominal lengths) and the held pose's joint angles in the profile frame's sign:
@@ -63,7 +63,9 @@ SEED_STRIDE = 1_000_000
 SETTINGS_BLOCK = 600
 #: The largest dataset seed (its objects' chain seeds stay below 2,000,000,000).
 MAX_SEED = 999
-#: Object i is a validation sample where i % VAL_EVERY == VAL_EVERY - 1.
+#: Object i is a validation sample where its round of counts (i // MAX_MOVING_LINKS: one chain of each
+#: count) is the last of every VAL_EVERY rounds: validation holds every count alike (release 0.6.14's
+#: every tenth object held only 2-, 4- and 6-link chains, since an object's count follows its index).
 VAL_EVERY = 10
 
 
@@ -93,7 +95,8 @@ class HandheldConfig:
 
 
 def split_of(index: int) -> str:
-    return "val" if index % VAL_EVERY == VAL_EVERY - 1 else "train"
+    """Object `index`'s split: "val" in every `VAL_EVERY`-th round of counts, else "train"."""
+    return "val" if (index // MAX_MOVING_LINKS) % VAL_EVERY == VAL_EVERY - 1 else "train"
 
 
 def _labels(d: Path, measured_angles) -> dict[str, np.ndarray]:
