@@ -38,12 +38,3 @@ def side_by_side(fn: Callable[[T], R], items: Iterable[T]) -> list[R]:
         return [fn(x) for x in items]
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return list(pool.map(fn, items))
-
-
-def both(first: Callable[[], R], second: Callable[[], T]) -> tuple[R, T]:
-    """(first(), second()), the two computed side by side in two threads where there are cores for it."""
-    if cores() < 2:
-        return first(), second()
-    with ThreadPoolExecutor(max_workers=1) as pool:
-        later = pool.submit(second)
-        return first(), later.result()

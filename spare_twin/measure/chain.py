@@ -17,7 +17,7 @@ from spare_twin.observe.points import PosedView
 from spare_twin.observe.profile import ProfileConfig
 from spare_twin.observe.views import REGISTERED_SWEEP, TRACKED_SWEEP, PosedViews, recording_views, sweep_part
 from spare_twin.recording import Recording
-from spare_twin.threads import both
+from spare_twin.threads import side_by_side
 
 #: What `ChainObservation.source` adds once a sweep's views were brought into register on the object.
 ON_OBJECT = ", brought into register on the object"
@@ -96,10 +96,13 @@ def measure_views(
 
     if seen.source not in (REGISTERED_SWEEP, TRACKED_SWEEP):
         return measured_as_registered()
+
+    def measured_on_object():
+        return _on_object(views, seen.source, seen.registration_s, print_scale, geometry)
+
     # the two readings are independent: side by side (a goal-sized sweep's 2.9 s and 1.7 s of work)
-    (on_object, measured), as_registered = both(
-        lambda: _on_object(views, seen.source, seen.registration_s, print_scale, geometry), measured_as_registered
-    )
+    readings = side_by_side(lambda read: read(), [measured_on_object, measured_as_registered])
+    (on_object, measured), as_registered = readings
     seconds = _add(on_object.timings_s, as_registered[0].timings_s, but="registration")
     if as_registered[1].n_links is not None or seen.frames is None or len(views) < MIN_FRAMES_TO_SPLIT:
         best = min(((on_object, measured), as_registered), key=_fit_rank)
