@@ -82,3 +82,28 @@ def test_the_library_never_drives_the_command_line():
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             if isinstance(node, ast.ImportFrom):
                 assert not (node.module or "").startswith(("spare_twin.cli", "spare_twin.commands")), path
+
+
+def test_open3d_is_imported_through_its_loader_without_its_plotly_viewer():
+    """The library imports open3d only through `spare_twin.open3d_loader`: that defers open3d's plotly
+    viewer (plotly and dash, most of open3d's import time) to its first use, where it is the real one."""
+    bare = []
+    for path in _library_files():
+        if path.name == "open3d_loader.py":
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            if any(name == "open3d" or name.startswith("open3d.") for name in names):
+                bare.append(f"{path.relative_to(REPO)}:{node.lineno}")
+    assert not bare, "open3d imported past spare_twin.open3d_loader:\n" + "\n".join(bare)
+    probe = (
+        "import sys; from spare_twin.open3d_loader import quiet_open3d; o3d = quiet_open3d();"
+        "print(sorted(m for m in ('plotly', 'dash') if m in sys.modules));"
+        "cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector([[0.0, 0.0, 0.0], [0.1, 0.0, 0.0]]));"
+        "fig = o3d.visualization.get_plotly_fig([cloud]);"
+        "print(type(fig).__module__.split('.')[0], sorted(m for m in ('plotly', 'dash') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert out.splitlines() == ["[]", "plotly ['dash', 'plotly']"], out

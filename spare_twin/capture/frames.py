@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.errors import SpareTwinError
+from spare_twin.open3d_loader import quiet_open3d
 
 #: Plausible median depth of a real RGB-D frame (metres). Outside it the depth scale is almost
 #: certainly wrong (millimetres read as metres gives hundreds of metres; 1/5000 read as 1/1000 gives 5x).
@@ -144,13 +145,3 @@ def fit_view(img: np.ndarray, K: np.ndarray, height: int, width: int, nearest: b
 
 def rotation_error_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
-
-
-def quiet_open3d():
-    """Import open3d with its console messages limited to errors (they go to stdout, which JSON output owns).
-    The capture package imports open3d only through this, where it needs it: importing it up front cost
-    every `capture` command 1.1-1.6 s, and `capture import` never calls it."""
-    import open3d as o3d
-
-    o3d.utility.set_verbosity_level(o3d.utility.VerbosityLevel.Error)
-    return o3d

@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from spare_twin.capture.frames import quiet_open3d
 from spare_twin.capture.se3 import apply_transform, kabsch, normal_equations, se3_exp, skew, solve_damped
+from spare_twin.open3d_loader import quiet_open3d
 
 if TYPE_CHECKING:
     from spare_twin.capture.registration import RegistrationConfig

@@ -16,8 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from spare_twin.capture.checks import positive, whole
-from spare_twin.capture.frames import K_from, check_depth, quiet_open3d
+from spare_twin.capture.frames import K_from, check_depth
 from spare_twin.errors import SpareTwinError
+from spare_twin.open3d_loader import quiet_open3d
 from spare_twin.output import check_output
 from spare_twin.recording import Camera, Recording, RecordingWriter
 

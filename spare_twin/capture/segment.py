@@ -12,8 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from spare_twin.capture.frames import quiet_open3d
 from spare_twin.errors import SpareTwinError
+from spare_twin.open3d_loader import quiet_open3d
 
 
 @dataclass(frozen=True)

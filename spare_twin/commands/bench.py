@@ -148,8 +148,8 @@ def _capture_flags(p) -> None:
 
 def bench_capture(args: argparse.Namespace) -> int:
     from spare_twin.bench.capture_registration import bench_registration
-    from spare_twin.capture.frames import quiet_open3d
     from spare_twin.capture.registration import RegistrationConfig
+    from spare_twin.open3d_loader import quiet_open3d
 
     quiet_open3d()
     gaps = _integers(args.gaps, "--gaps", "1,10,40")

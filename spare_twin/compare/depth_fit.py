@@ -39,6 +39,7 @@ from spare_twin.object.folder import ObjectFolder
 from spare_twin.object.kinematics import base_pose, forward_kinematics, param_bounds
 from spare_twin.object.urdf import load_urdf
 from spare_twin.observe.points import backproject
+from spare_twin.open3d_loader import quiet_open3d
 
 #: Depth disagreements beyond this count as this much (metres): a hole or a stray reading is one bad pixel.
 DEPTH_TRUNCATE_M = 0.02
@@ -226,7 +227,7 @@ class TwinCaster:
     def cast(self, poses: np.ndarray, rays: np.ndarray) -> np.ndarray:
         """(N,) distance along each of `rays` ((N, 6) float32 origins, directions) to the twin with
         links at `poses`; inf where a ray misses it."""
-        import open3d as o3d
+        o3d = quiet_open3d()
 
         if len(rays) == 0:
             return np.zeros(0)
@@ -245,7 +246,7 @@ DECIMATE = 0.5
 def decimated(mesh, share: float) -> tuple[np.ndarray, np.ndarray]:
     """(vertices float64, faces int64) of a trimesh simplified to `share` of its triangles by quadric
     decimation (open3d; deterministic)."""
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     m = o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
@@ -425,7 +426,7 @@ class DepthScorer:
     def align_views(self, params: np.ndarray) -> tuple[float, float]:
         """Re-align every view's camera onto the twin posed by `params` and the table plane (see the
         module doc); returns the mean correction (millimetres, degrees)."""
-        import open3d as o3d
+        o3d = quiet_open3d()
 
         reach_m = self.reach_m()
         threads = o3d.utility.get_max_threads()
@@ -439,7 +440,7 @@ class DepthScorer:
         return tuple(float(x) for x in np.mean(shifts, axis=0))
 
     def _align(self, params: np.ndarray, reach_m: float) -> tuple[list[DepthView], list[tuple[float, float]]]:
-        import open3d as o3d
+        o3d = quiet_open3d()
 
         reg = o3d.pipelines.registration
         table = _table_patch(params[:2], min(reach_m, ALIGN_TABLE_RADIUS_M))
@@ -500,7 +501,7 @@ def _to_cloud(points_camera: np.ndarray, T_cloud_camera: np.ndarray) -> np.ndarr
 def _observed_near(observed: np.ndarray, centre_xy: np.ndarray, radius_m: float):
     """Observed points within `radius_m` of `centre_xy` as an open3d cloud: the object's at
     ALIGN_VOXEL_M, the table's (within ALIGN_TABLE_RADIUS_M) at the coarser ALIGN_TABLE_VOXEL_M."""
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     distance = np.linalg.norm(observed[:, :2] - centre_xy, axis=1)
     above = observed[:, 2] > OBJECT_HEIGHT_M
@@ -515,7 +516,7 @@ def _observed_near(observed: np.ndarray, centre_xy: np.ndarray, radius_m: float)
 
 def _table_patch(centre_xy: np.ndarray, radius_m: float, spacing_m: float = 0.003):
     """The table top (z = 0) round `centre_xy` as an open3d cloud with upward normals."""
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     g = np.arange(-radius_m, radius_m + 1e-9, spacing_m)
     x, y = np.meshgrid(g, g)

@@ -8,6 +8,8 @@ import math
 
 import numpy as np
 
+from spare_twin.open3d_loader import quiet_open3d
+
 #: The twin's table (spare_twin.sim.twin.Twin): a 1 m square top at z = 0 centred on the base.
 TABLE_HALF_SIZE_M = 0.5
 #: Grey (BT.601 luma in [0, 1]) of that table under the twin's default Lighting, and of the empty
@@ -18,7 +20,7 @@ BACKGROUND_GREY = 1.0
 
 def point_spacing_m(points: np.ndarray) -> float:
     """Median nearest-neighbour distance (the cloud's sampling step)."""
-    import open3d as o3d
+    o3d = quiet_open3d()
 
     if len(points) < 2:
         return 0.004

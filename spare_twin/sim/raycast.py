@@ -25,6 +25,7 @@ from lxml import etree
 from spare_twin.config import COLORS
 from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import ObjectFolder
+from spare_twin.open3d_loader import quiet_open3d
 from spare_twin.sim.print_physics import urdf_origin
 from spare_twin.sim.rig import axis_angle
 from spare_twin.sim.twin import DEFAULT_TABLE_RGBA, Frame, Lighting, Twin
@@ -158,7 +159,7 @@ class RaycastTwin:
 
     def _build(self):
         """The ray-casting scene at the current joints (rebuilt only when they change)."""
-        import open3d as o3d
+        o3d = quiet_open3d()
 
         key = self._angles.tobytes() if self.obj is not None else b""
         if self._scene is not None and key == self._scene_key:
@@ -199,7 +200,7 @@ class RaycastTwin:
         lighting: Lighting = Lighting(),
         segmentation: bool = True,
     ) -> Frame:
-        import open3d as o3d
+        o3d = quiet_open3d()
 
         scene = self._build()
         T = np.asarray(T_world_camera, dtype=np.float64)
