@@ -149,7 +149,8 @@ def test_while_the_frames_go_too_little_round_the_chain_updates_say_so_without_m
 
 
 def test_updates_start_early_enough_to_answer_within_update_s():
-    from spare_twin.live.session import POLL_S, UPDATE_MARGIN, LiveConfig, _adapted, _next_start
+    from spare_twin.live.config import LiveConfig
+    from spare_twin.live.session import POLL_S, UPDATE_MARGIN, _adapted, _next_start
 
     cfg = LiveConfig(update_s=1.0)
     for took_s in (0.1, 0.3, 0.5, 0.6):
@@ -160,7 +161,8 @@ def test_updates_start_early_enough_to_answer_within_update_s():
 
 
 def test_updates_read_few_views_until_the_first_count_and_all_at_the_end():
-    from spare_twin.live.session import MIN_VIEWS, LiveConfig, _views_for
+    from spare_twin.live.config import LiveConfig
+    from spare_twin.live.session import MIN_VIEWS, _views_for
 
     cfg = LiveConfig(views=16)
     assert _views_for(8, ended=False, counted=False, cfg=cfg) == MIN_VIEWS  # the first count comes sooner
@@ -294,6 +296,28 @@ def test_a_missing_bag_is_one_line(tmp_path, capsys):
 def test_no_device_is_one_line(tmp_path, capsys):
     code, _, err = run_cli(["live", "--no-viewer", "--out", str(tmp_path / "r")], capsys)
     _one_line_error(code, err, "RealSense")
+    assert not (tmp_path / "r").exists()
+
+
+@pytest.mark.parametrize(
+    "source, words",
+    [
+        ([], ("RealSense",)),
+        (["--replay", "nope"], ("nope", "no such recording folder")),
+        (["--update-s", "0"], ("--update-s", "positive")),
+    ],
+)
+def test_a_bad_source_or_option_is_said_before_torch_is_loaded(source, words, tmp_path):
+    """No device, no such folder or a bad number: said before the estimate's modules (torch, the
+    measurement: 5 s of a new process) are imported, and nothing written."""
+    probe = (
+        "import sys; from spare_twin.cli import main;"
+        f"code = main(['live', '--no-viewer', '--out', 'r', *{source!r}]);"
+        "print(code, 'torch' in sys.modules, 'spare_twin.measure.layers' in sys.modules)"
+    )
+    res = subprocess.run([sys.executable, "-c", probe], cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert res.stdout.split() == ["1", "False", "False"], (res.stdout, res.stderr)
+    _one_line_error(1, res.stderr, *words)
     assert not (tmp_path / "r").exists()
 
 

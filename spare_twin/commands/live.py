@@ -60,8 +60,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    # The options, the outputs and the source are checked (and the source opened) before the estimate's
+    # modules are imported: torch and the measurement take 5 s to load, and "no device" should not wait.
     from spare_twin.commands.common import flags
-    from spare_twin.live.run import live
+    from spare_twin.live.config import LiveConfig
+    from spare_twin.live.sources import open_live
     from spare_twin.predict.parts import read_parts
 
     out_lines = []
@@ -96,6 +99,13 @@ def run(args) -> int:
         parts="--parts",
     ):
         parts = read_parts(args.parts) if args.parts is not None else None
+        LiveConfig(update_s=args.update_s, stable_s=args.stable_s, until_stable=args.until_stable, views=args.views)
+        source = open_live(args.out, args.replay, args.bag, args.speed, args.rrd, args.connect, args.force)
+        try:
+            from spare_twin.live.run import live
+        except BaseException:
+            source.close()
+            raise
         res = live(
             args.out,
             replay=args.replay,
@@ -116,6 +126,7 @@ def run(args) -> int:
             on_update=on_update,
             say=lambda line: print(line, file=sys.stderr, flush=True),
             force=args.force,
+            source=source,
         )
     tail = f"; view saved to {args.rrd}" if args.rrd else ""
     print(f"wrote {args.out}: {res.frames_received} frames ({res.frames_placed} placed, {res.frames_dropped} dropped "

@@ -7,12 +7,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 from spare_twin.config import PartDims
-from spare_twin.errors import SpareTwinError
+from spare_twin.live.config import LiveConfig
 from spare_twin.live.estimate import load_estimator
 from spare_twin.live.rerun_view import LiveView
-from spare_twin.live.session import LIVE, LiveConfig, LiveResult, Update, run_live
-from spare_twin.live.sources import open_source
-from spare_twin.output import RRD, check_output
+from spare_twin.live.session import LiveResult, Update, run_live
+from spare_twin.live.sources import Source, open_live
 
 
 def live(
@@ -35,17 +34,16 @@ def live(
     on_update: Callable[[Update], None] = lambda u: None,
     say: Callable[[str], None] = lambda line: None,
     force: bool = False,
+    source: Source | None = None,
 ) -> LiveResult:
     """`spare-twin live`; see `live.session`. The view goes to `rrd` (a file), `connect` (a running
     viewer) or, with `viewer`, a spawned viewer; none without any of them. `parts`: what the chain was
-    printed with (`predict --parts`)."""
-    if rrd is not None and connect is not None:
-        raise SpareTwinError("rrd, connect: give one place for the view, not both")
+    printed with (`predict --parts`). `source`: what `live.sources.open_live` opened with these
+    outputs and this source (`spare-twin live` opens it before it imports this module), which this
+    then owns and closes; None: opened here."""
     cfg = LiveConfig(update_s=update_s, stable_s=stable_s, until_stable=until_stable, views=views)
-    check_output(out, LIVE, tuple(p for p in (replay, bag) if p is not None), force)
-    if rrd is not None:
-        check_output(rrd, RRD, (), force)
-    source = open_source(replay, bag, speed)
+    if source is None:
+        source = open_live(out, replay, bag, speed, rrd, connect, force)
     view = None
     try:
         est = load_estimator(model, answer, print_scale, parts)

@@ -24,6 +24,8 @@ from spare_twin.capture.bag import BagReader
 from spare_twin.capture.frames import check_depth
 from spare_twin.capture.record import RecordConfig, o3d_camera, o3d_depth_scale, o3d_frame_arrays, start_realsense
 from spare_twin.errors import SpareTwinError
+from spare_twin.live.config import LIVE
+from spare_twin.output import RRD, check_output
 from spare_twin.recording import Recording, RecordingWriter
 
 
@@ -216,6 +218,26 @@ class RealSenseSource(Source):
 
     def close(self) -> None:
         self.sensor.stop_capture()
+
+
+def open_live(
+    out: str | Path,
+    replay: str | Path | None = None,
+    bag: str | Path | None = None,
+    speed: float = 1.0,
+    rrd: str | Path | None = None,
+    connect: str | None = None,
+    force: bool = False,
+) -> Source:
+    """What `live` checks and opens before anything else: the outputs (`out`, the recording; `rrd`, the
+    view) and the source (`open_source`), opened. It needs neither torch nor the measurement, so that
+    `spare-twin live` says "no device" or "no such folder" before it loads them (5 s)."""
+    if rrd is not None and connect is not None:
+        raise SpareTwinError("rrd, connect: give one place for the view, not both")
+    check_output(out, LIVE, tuple(p for p in (replay, bag) if p is not None), force)
+    if rrd is not None:
+        check_output(rrd, RRD, (), force)
+    return open_source(replay, bag, speed)
 
 
 def open_source(replay: str | Path | None, bag: str | Path | None, speed: float = 1.0) -> Source:
