@@ -1,4 +1,5 @@
-"""One shared set of input validators: poses, counts and sizes, worker pools (JSON text: `spare_twin.io.read_json`).
+"""One shared set of input validators: poses, counts and sizes, worker pools, input files and folders
+(JSON text: `spare_twin.io.read_json`).
 
 Every reader of user input (recordings, importers, object folders, rig and config files, datasets,
 checkpoints) checks through these, so one kind of bad input gets one kind of one-line error naming the
@@ -9,6 +10,7 @@ from __future__ import annotations
 
 import os
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -125,3 +127,23 @@ def cap_workers(workers: int, work: int, name: str = "workers") -> int:
         reasons = [f"{cores} cores" if cores == capped else "", f"{work} to do" if work == capped else ""]
         print(f"note: {name} {workers}: using {capped} ({', '.join(r for r in reasons if r)})", file=sys.stderr)
     return capped
+
+
+# -- input files and folders -------------------------------------------------------------------------
+
+
+def check_file(path: str | Path, what: str) -> Path:
+    """`path` as a Path if it is a file; else "<path>: no such <what>". Commands check their input files
+    with it before they import what reads them (torch, for a checkpoint: seconds of a new process)."""
+    path = Path(path)
+    if not path.is_file():
+        raise SpareTwinError(f"{path}: no such {what}")
+    return path
+
+
+def check_folder(name: str, path: str | Path) -> Path:
+    """`path` as a Path if it is a folder; else "<name> <path>: no such folder" (a command says its flag)."""
+    path = Path(path)
+    if not path.is_dir():
+        raise SpareTwinError(f"{name} {path}: no such folder")
+    return path

@@ -18,10 +18,9 @@ import numpy as np
 
 from spare_twin.config import MAX_MOVING_LINKS
 from spare_twin.errors import SpareTwinError
+from spare_twin.sim.choices import MAX_CLUTTER, RENDERERS
 from spare_twin.sim.effects import ALL_EFFECTS, CaptureEffects
 from spare_twin.sim.noise import load_noise
-from spare_twin.sim.raycast import RENDERERS
-from spare_twin.sim.scene import MAX_CLUTTER
 
 #: First object seed of the bench by default: the first range drawn with every effect (held out).
 BENCH_SEED = 30000

@@ -23,6 +23,7 @@ from spare_twin.config import DESIGN_CONTRACT_LENGTHS_KEY, LENGTHS_KEY, ChainSpe
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import encode_png, read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.object import checks, kinematics
+from spare_twin.object.files import OBJECT_FORMAT, object_files
 from spare_twin.object.kinematics import joint_limits_rad, joint_origin, keepout_height_m
 from spare_twin.object.parts import (
     CIRCLE_SEGMENTS,
@@ -35,8 +36,6 @@ from spare_twin.object.preview import render_preview
 from spare_twin.object.stl import stl_bytes, to_trimesh
 from spare_twin.object.urdf import build_robot, joint_name, link_name, urdf_bytes
 from spare_twin.output import writing
-
-OBJECT_FORMAT = "spare-twin-object/1"
 
 
 @dataclass(frozen=True)
@@ -242,25 +241,10 @@ def load_object(root: str | Path, verify_meshes: bool = True) -> ObjectFolder:
     """The object folder at `root`, its meshes verified (`verify_meshes`) before anything uses them:
     a truncated or swapped STL would otherwise render or compare as a wrong object without a word."""
     root = Path(root)
-    if not root.is_dir():
-        raise SpareTwinError(f"{root}: not a folder")
-    meta_path = root / "object.json"
-    if not meta_path.is_file():
-        raise SpareTwinError(f"{root}: not an object folder (no object.json)")
-    meta = read_json(meta_path)
-    if not isinstance(meta, dict) or meta.get("format") != OBJECT_FORMAT:
-        raise SpareTwinError(f"{meta_path}: not a {OBJECT_FORMAT} file")
-    spec = ChainSpec.from_dict(meta, source=str(meta_path))
-    urdf_path = root / f"{spec.name}.urdf"
-    if not urdf_path.is_file():
-        raise SpareTwinError(f"{urdf_path}: missing")
-    links = ["link0_base.stl"] + [f"link{k}.stl" for k in range(1, spec.n_links + 1)]
-    for name in links:
-        if not (root / name).is_file():
-            raise SpareTwinError(f"{root / name}: missing")
+    files = object_files(root)
     if verify_meshes:
-        verify_meshes_against_report(root, links)
-    return ObjectFolder(root=root, spec=spec, urdf_path=urdf_path)
+        verify_meshes_against_report(root, files.mesh_names)
+    return ObjectFolder(root=root, spec=files.spec, urdf_path=files.urdf_path)
 
 
 #: How far a part's mesh may be from what print_report.json measured (STL stores float32 coordinates).

@@ -26,6 +26,7 @@ from spare_twin.config import COLORS
 from spare_twin.errors import SpareTwinError
 from spare_twin.object.folder import ObjectFolder
 from spare_twin.open3d_loader import quiet_open3d
+from spare_twin.sim.choices import RENDERERS
 from spare_twin.sim.print_physics import urdf_origin
 from spare_twin.sim.rig import axis_angle
 from spare_twin.sim.twin import DEFAULT_TABLE_RGBA, Frame, Lighting, Twin
@@ -249,10 +250,6 @@ class RaycastTwin:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-#: The renderers `spare-twin render --renderer` offers.
-RENDERERS = ("pybullet", "raycast")
 
 
 def make_renderer(name: str):

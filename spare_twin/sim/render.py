@@ -24,14 +24,15 @@ from spare_twin.object.kinematics import forward_kinematics, link_half_width_m, 
 from spare_twin.object.urdf import check_urdf
 from spare_twin.recording import SIM_DEPTH_SCALE, Camera, RecordingWriter
 from spare_twin.recording.format import MAX_FRAMES
+from spare_twin.sim.choices import MAX_CLUTTER, RENDERERS
 from spare_twin.sim.effects import NO_EFFECTS, CaptureEffects
 from spare_twin.sim.handheld import MIN_SWEEP_DEG, HandheldPath, handheld_poses
 from spare_twin.sim.motion import MotionConfig, object_motion
 from spare_twin.sim.noise import load_noise
-from spare_twin.sim.raycast import RENDERERS, make_renderer
+from spare_twin.sim.raycast import make_renderer
 from spare_twin.sim.render_effects import EffectsRun
 from spare_twin.sim.rig import Rig, load_rig
-from spare_twin.sim.scene import MAX_CLUTTER, add_clutter, sample_clutter
+from spare_twin.sim.scene import add_clutter, sample_clutter
 from spare_twin.validate import check_count, check_fits_memory
 
 PATHS = ("rig", "handheld")

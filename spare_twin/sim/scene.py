@@ -123,8 +123,6 @@ def sample_scene(rig: Rig, spec: ChainSpec, dr: DomainRandomization, rng: np.ran
 
 # -- table clutter ----------------------------------------------------------------------------------
 CLUTTER_SHAPES = ("box", "cylinder")
-#: Most clutter items one scene takes (more leave no room clear of the object on a 12..35 cm ring).
-MAX_CLUTTER = 8
 
 
 @dataclass(frozen=True)
