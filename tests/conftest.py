@@ -16,6 +16,8 @@ import hashlib
 import json
 import pickle
 import shutil
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -162,6 +164,20 @@ def run_cli(argv, capsys):
     code = main(argv)
     out, err = capsys.readouterr()
     return code, out, err
+
+
+def refused_before_torch(argv: list[str], cwd: Path, *words: str) -> None:
+    """`spare-twin ARGV`, run by `spare_twin.cli.main` in a new Python process in `cwd`, is refused before
+    torch is imported (3-5 s of a new process): exit code 1, one line on stderr naming each of `words`,
+    no traceback, and nothing in `cwd` added, removed or changed."""
+    probe = f"import sys; from spare_twin.cli import main; code = main({argv!r}); print(code, 'torch' in sys.modules)"
+    before = tree(cwd)
+    res = subprocess.run([sys.executable, "-c", probe], cwd=cwd, capture_output=True, text=True, timeout=120)
+    assert res.stdout.split() == ["1", "False"], (res.stdout, res.stderr)
+    lines = stderr_lines(res.stderr)
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert all(w in lines[0] for w in words), lines[0]
+    assert tree(cwd) == before
 
 
 def predict_json(rec, model, capsys, *extra):

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 from capture_helpers import TUM_K, TUM_PAIR, seven_scenes
-from conftest import REPO, stderr_lines, tree
+from conftest import REPO, refused_before_torch, stderr_lines, tree
 
 from spare_twin.cli import main
 
@@ -528,6 +528,37 @@ def test_bad_input(case, sources, tmp_path, monkeypatch, capsys):
                 + "\n"
             )
     assert not problems, f"spare-twin {' '.join(argv)}: " + "; ".join(problems)
+
+
+# -- compare: refused before torch is loaded -------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "argv, words",
+    [
+        (["--object", "nope", "--real", "nope2"], ("nope", "not a folder")),
+        (["--object", "{obj}", "--real", "nope"], ("nope", "not a folder")),
+        (["--object", "{obj}"], ("--real",)),
+        (["--object", "{obj}", "--real", "{rec}", "--model", "nope.pt"], ("nope.pt", "no such checkpoint")),
+        (["--object", "{obj}", "--real", "{rec}", "--sim-out", "mine"], ("mine", "--force")),
+        (["--object", "{obj}", "--real", "{rec}", "--rrd", "notes.txt"], ("notes.txt", "--force")),
+        (["--object", "{obj}", "--real", "{rec}", "--sim-out", "{obj}"], ("is the input",)),
+        (["--batch", "nope", "--out", "t"], ("--batch nope",)),
+        (["--batch", "pairs", "--out", "mine"], ("mine", "--force")),
+    ],
+)
+def test_compare_refuses_before_torch_is_loaded(argv, words, printed_object, rig_rec, tmp_path):
+    """A missing input, a missing checkpoint or an output that is not compare's: said before the
+    comparison's modules (torch and the stages: 5 s of a new process) are imported, and nothing written."""
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    (tmp_path / "notes.txt").write_text("mine")
+    for side in ("object", "real"):
+        (tmp_path / "pairs" / "a" / side).mkdir(parents=True)
+    rec = Path(rig_rec.root)
+    argv = [a.format(obj=printed_object.root, rec=rec) for a in argv]
+    refused_before_torch(["compare", *argv], tmp_path, *words)
+    assert not rec.with_name(rec.name + "_sim_twin").exists()
 
 
 # -- through the console script --------------------------------------------------------------------

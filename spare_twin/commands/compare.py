@@ -41,13 +41,17 @@ def run(args: argparse.Namespace) -> int:
     import json
 
     from spare_twin.commands.common import flags
-    from spare_twin.compare.sim_vs_real import compare
+    from spare_twin.compare.inputs import check_compare
 
     if args.batch:
         return run_batch(args)
     if not args.object or not args.real:
         raise SpareTwinError("--object and --real are both needed (or --batch DIR)")
     with flags(model="--model", force="--force"):
+        # checked before the comparison's modules are imported: torch and the stages take 5 s to load
+        check_compare(args.object, args.real, args.model, args.rrd, args.sim_out, args.force)
+        from spare_twin.compare.sim_vs_real import compare
+
         result = compare(args.object, args.real, model=args.model, rrd=args.rrd, sim_dir=args.sim_out, force=args.force)
     if args.json:
         print(json.dumps(result.to_json()))
@@ -63,11 +67,14 @@ def run(args: argparse.Namespace) -> int:
 
 def run_batch(args: argparse.Namespace) -> int:
     from spare_twin.commands.common import flags
-    from spare_twin.compare.batch import compare_batch
+    from spare_twin.compare.inputs import check_batch
 
     if not args.out:
         raise SpareTwinError("--out TABLE_DIR is needed with --batch")
     with flags(batch="--batch", model="--model", force="--force"):
+        check_batch(args.batch, args.out, args.model, args.force)
+        from spare_twin.compare.batch import compare_batch
+
         table, files = compare_batch(args.batch, args.out, args.model, force=args.force)
     print_table(table, files, args.json)
     return 0

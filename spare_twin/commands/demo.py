@@ -31,9 +31,13 @@ def _step(i: int, what: str) -> None:
 
 def run(args) -> int:
     from spare_twin.commands.common import flags
-    from spare_twin.compare.demo import run_demo
+    from spare_twin.compare.inputs import check_demo
 
     with flags(out="--out", model="--model", force="--force"):
+        # checked before the demo's modules are imported: torch and every stage take 5 s to load
+        check_demo(args.out, args.model, args.force)
+        from spare_twin.compare.demo import run_demo
+
         result = run_demo(args.out, args.model, step=_step, force=args.force)
     print(result.summary())
     return 0

@@ -28,13 +28,13 @@ from spare_twin.compare.answers import (
     rows_table,
     score_answers,
 )
+from spare_twin.compare.inputs import TABLE, check_batch
 from spare_twin.compare.sim_vs_real import CompareConfig, compare
 from spare_twin.compare.table import sim2real_table, table_markdown, write_table
 from spare_twin.config import ChainSpec
-from spare_twin.errors import SpareTwinError
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets.checkpoint import default_model, load_model
-from spare_twin.output import check_output, writing
+from spare_twin.output import writing
 from spare_twin.recording import Recording
 
 #: What a batch keeps of each comparison in its table.
@@ -43,24 +43,7 @@ INSTANCE_KEYS = ("name", "truth", "sim", "real", "real_twin_aligned", "errors", 
 ANSWER_SIDES = {"sim": "sim, real cameras", "real": "real"}
 
 
-def pairs_in(root: str | Path) -> list[Path]:
-    """The `<name>/` folders of `root` that hold both `object/` and `real/`, sorted by name."""
-    root = Path(root)
-    if not root.is_dir():
-        return []
-    return sorted(d for d in root.iterdir() if (d / "object").is_dir() and (d / "real").is_dir())
-
-
-#: Output kind (`spare_twin.output`) of a batch's table folder.
-TABLE = "compare batch"
 TABLE_FILES = ("json", "md", "png")
-
-
-def _model(model: str | Path | None) -> str:
-    """The checkpoint to use, loaded once so a bad one is refused before any work."""
-    model = str(model or default_model("predict"))
-    load_model(model)
-    return model
 
 
 def _table_files(out_dir: Path) -> dict[str, str]:
@@ -80,13 +63,11 @@ def compare_batch(
     Each pair's `Comparison.to_json()`, with its `name` and its `answers` (each network of `models`
     alone: shipped names or checkpoints; default every shipped model that can read the pairs' real
     recordings), is kept in `<pair>/compare.json`; the table's `answers` holds their rows."""
-    pairs = pairs_in(root)
-    if not pairs:
-        raise SpareTwinError(f"batch {root}: no <name>/object and <name>/real folders in it")
-    model = _model(model)
+    model = str(model or default_model("predict"))
+    pairs = check_batch(root, table_dir, model, force)
+    load_model(model)  # a bad checkpoint is refused before any work
     frames = min(Recording.open(d / "real").n_frames for d in pairs) if models is None else 0
     nets = resolve_models(models, frames)  # the default: the networks that can read every real recording
-    check_output(table_dir, TABLE, (root, model), force)
     table = _compare_pairs(pairs, model, nets, progress, force)
     with writing(table_dir, TABLE, (root, model), force) as tmp:
         write_table(table, tmp)

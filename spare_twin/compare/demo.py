@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from spare_twin.capture.simulated import SensorCaptureConfig, simulated_capture
+from spare_twin.compare.inputs import DEMO, check_demo
 from spare_twin.compare.result import Comparison, summary_row
 from spare_twin.compare.sim_vs_real import compare
 from spare_twin.config import ChainSpec
@@ -102,10 +103,6 @@ def _sources(p: Prediction) -> str:
     return came + (f" ({', '.join(own)})" if own else "")
 
 
-#: The output kind of the demo's folder (`spare_twin.output`).
-DEMO = "demo"
-
-
 def run_demo(
     out: str | Path,
     model: str | Path | None = None,
@@ -117,6 +114,7 @@ def run_demo(
     `out` is one output (`spare_twin.output`): absent, empty or an earlier demo's; `force` replaces
     anything else, and only once the new demo is complete (it is built beside `out`, then swapped in)."""
     model = Path(model or default_model("predict"))
+    check_demo(out, model, force)
     load_model(model)  # a bad checkpoint is refused now, not after minutes of work
     t0 = time.perf_counter()
     spec = DEMO_CHAIN

@@ -32,20 +32,17 @@ from spare_twin import __version__
 from spare_twin.capture.pipeline import fuse_recording, register_recording
 from spare_twin.compare.articulated import ArticulatedFit, FitConfig, fit_articulated
 from spare_twin.compare.depth_fit import DepthScorer, DepthView, transformed
+from spare_twin.compare.inputs import SIM_TWIN, check_compare
 from spare_twin.compare.rerun_log import ComparisonLog, log_comparison
 from spare_twin.compare.result import Comparison, Truth
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.object.folder import ObjectFolder, load_object
 from spare_twin.object.kinematics import printed_lengths_m
-from spare_twin.output import RRD, check_output
 from spare_twin.predict.images import capture_refusal
 from spare_twin.predict.run import predict_recording
 from spare_twin.recording import Camera, Recording, RecordingWriter
 from spare_twin.sim.twin import Twin
-
-#: The output kind of the twin's recording (the marker `spare_twin.output` writes in it).
-SIM_TWIN = "compare sim twin"
 
 
 @dataclass(frozen=True)
@@ -218,15 +215,11 @@ def compare(
     log to `rrd` when given. Both are outputs (`spare_twin.output`: `force` replaces what is not an
     earlier one); every input and output is checked before anything is written, the real recording's
     registration included."""
-    obj = load_object(object_dir)  # verifies the meshes: a broken STL would fit and render a wrong twin
-    real = Recording.open(real_dir)
     model = model or ckpt.default_model("predict")
+    checked = check_compare(object_dir, real_dir, model, rrd, sim_dir, force)
+    real, sim_dir, inputs = checked.real, checked.sim_dir, checked.inputs
+    obj = load_object(object_dir)  # verifies the meshes: a broken STL would fit and render a wrong twin
     _, net, ck = ckpt.load_model(model)  # a bad checkpoint is refused now, not after minutes of work
-    sim_dir = Path(sim_dir) if sim_dir else Path(real.root).with_name(Path(real.root).name + "_sim_twin")
-    inputs = (object_dir, real.root, model)
-    check_output(sim_dir, SIM_TWIN, inputs, force)
-    if rrd is not None:
-        check_output(rrd, RRD, (*inputs, sim_dir), force)
     refusal = None if net.arch == "profile" else capture_refusal(real, ck["meta"].get("rig"), str(model), net.mode)
     if refusal is not None:  # the real side would be refused after the registration and the fit
         raise SpareTwinError(refusal)
