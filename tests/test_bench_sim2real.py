@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 import pytest
-from conftest import run_cli
+from conftest import refused_before_torch, run_cli
 
 from spare_twin.bench import capture, sim2real
 from spare_twin.bench.scoring import answer_stats, bench_markdown, bench_table, score_prediction
@@ -182,6 +182,26 @@ def test_bad_flags_are_one_line_naming_the_flag(args, flag, tmp_path, capsys):
     code, out, err = run_cli(["bench", "sim2real", "--out", str(tmp_path / "b"), *args], capsys)
     assert code != 0 and err.strip().count("\n") == 0 and flag in err and "Traceback" not in err
     assert not (tmp_path / "b").exists()
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--objects", "0"], ("--objects 0",)),
+        (["--objects", "-3"], ("--objects -3",)),
+        (["--workers", "0"], ("--workers 0",)),
+        (["--clutter-max", "-1"], ("--clutter-max -1",)),
+        (["--sim-frames", "0"], ("--sim-frames 0",)),
+        (["--sensors", "kinect_v1:9x9"], ("--sensors",)),
+        (["--out", "mine"], ("mine", "--force")),
+    ],
+)
+def test_a_bad_option_or_folder_is_said_before_torch_is_loaded(args, words, tmp_path):
+    """A count out of range or a folder that is not a bench's: said before the bench's modules (torch, the
+    measurement: 5 s of a new process) are imported, and nothing written."""
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    refused_before_torch(["bench", "sim2real", "--out", "b", *args], tmp_path, *words)
 
 
 # the profile network's own estimate comes from the combined run; the temporal grey network reads 100

@@ -9,9 +9,10 @@ import json
 import numpy as np
 import pytest
 import torch
-from conftest import run_cli
+from conftest import refused_before_torch, run_cli
 
-from spare_twin.bench.handheld_samples import HANDHELD_SEED_BASE, SETTINGS_BLOCK, HandheldConfig, handheld_dataset
+from spare_twin.bench.handheld_config import HANDHELD_SEED_BASE, SETTINGS_BLOCK, HandheldConfig
+from spare_twin.bench.handheld_samples import handheld_dataset
 from spare_twin.config import sample_chain
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_json_atomic
@@ -71,6 +72,25 @@ def test_handheld_flags_are_checked_before_anything_is_written(tmp_path, capsys)
         assert not out.exists()
 
 
+@pytest.mark.parametrize(
+    "extra, words",
+    [
+        (["--instances", "-1"], ("--instances -1", "at least 1")),
+        (["--instances", "0"], ("--instances 0",)),
+        (["--instances", "2", "--seed", "1000"], ("--seed 1000", "at most 999")),
+        (["--instances", "2", "--workers", "0"], ("--workers 0", "at least 1")),
+        (["--instances", "2", "--out", "other"], ("--out other", "seed 3")),
+    ],
+)
+def test_a_bad_count_seed_workers_or_folder_is_said_before_torch_is_loaded(extra, words, tmp_path):
+    """A count, seed or worker count out of range, or a folder of another seed's samples: said before the
+    drawing's modules (the measurement and torch: 5 s of a new process) are imported, and nothing written."""
+    (tmp_path / "other").mkdir()
+    write_json_atomic(tmp_path / "other" / "manifest.json", {"format": HANDHELD_FORMAT, "seed": 3})
+    argv = ["dataset", "--handheld", "--out", "hh", *extra]
+    refused_before_torch(argv, tmp_path, *words)
+
+
 def _synthetic_handheld(folder, counts: list[int], splits: list[str]):
     """A hand-held sample folder whose profiles show n bright bands for n links (learnable)."""
     x = np.zeros((len(counts), 3, 64, 80), np.float16)
@@ -126,7 +146,7 @@ def test_a_short_training_run_on_handheld_samples_learns(tmp_path, capsys):
 
 def test_handheld_config_is_checked_and_its_captures_do_not_depend_on_the_count():
     with pytest.raises(SpareTwinError, match="instances 0"):
-        HandheldConfig(objects=0).bench_config()
+        HandheldConfig(objects=0)
     assert HandheldConfig(objects=3, seed=2).bench_config().seed == HANDHELD_SEED_BASE + 2_000_000
     # a larger --instances extends the folder: the first objects' captures stay what they were
     many = HandheldConfig(objects=SETTINGS_BLOCK + 5).settings()
@@ -158,7 +178,7 @@ def test_handheld_samples_follow_the_rig_samples_in_a_training_split(tmp_path):
 def test_the_validation_split_holds_every_count_alike():
     """Every tenth round of counts is validation: of 120 objects, two chains of each count 1..6 (every
     tenth object would have given only 2-, 4- and 6-link chains: an object's count follows its index)."""
-    from spare_twin.bench.handheld_samples import HandheldConfig, split_of
+    from spare_twin.bench.handheld_samples import split_of
 
     rows = HandheldConfig(objects=120).settings()
     counts = [c.n_links for c in rows]

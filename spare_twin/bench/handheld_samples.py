@@ -12,7 +12,8 @@ image the network reads with the truth as its labels. The capture itself is dele
 (about 8 MB each); a capture on whose points `predict` finds no chain gives no sample (counted as
 rejected).
 
-Seeds: object i of `--seed S` is chain seed `HANDHELD_SEED_BASE + S * SEED_STRIDE + i`, never one of the
+Seeds (`bench.handheld_config`, which holds the configuration and its checks, light to import): object
+i of `--seed S` is chain seed `HANDHELD_SEED_BASE + S * SEED_STRIDE + i`, never one of the
 bench's ranges (all below 1,000,000), so no held-out capture is ever trained on. Its capture settings
 are row i of the bench's settings table (`bench.settings.capture_settings`) drawn for blocks of
 `SETTINGS_BLOCK` objects, so they do not depend on how many objects are asked for. Every
@@ -32,18 +33,22 @@ from __future__ import annotations
 
 import shutil
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from tqdm import tqdm
 
 from spare_twin.bench import capture
-from spare_twin.bench.settings import BenchConfig, CaptureSettings, capture_settings
+from spare_twin.bench.handheld_config import (
+    SETTINGS_BLOCK,
+    HandheldConfig,
+    check_handheld,
+)
+from spare_twin.bench.settings import BenchConfig, CaptureSettings
 from spare_twin.config import MAX_MOVING_LINKS, ChainSpec
 from spare_twin.dataset.backends import start_pool
 from spare_twin.errors import SpareTwinError
-from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
+from spare_twin.io import write_bytes_atomic, write_json_atomic
 from spare_twin.measure.chain import measure_views
 from spare_twin.nets.profile_train import HANDHELD_FORMAT, HANDHELD_KIND, SPLIT_CODES
 from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
@@ -51,47 +56,11 @@ from spare_twin.observe.views import recording_views
 from spare_twin.output import writing
 from spare_twin.predict.abstain import MIN_ARC_DEG
 from spare_twin.recording import Recording, npz_bytes
-from spare_twin.validate import check_count, check_whole
 
-#: Chain seeds of the training captures start here, far above every bench range (< 1,000,000).
-HANDHELD_SEED_BASE = 1_000_000_000
-#: Seeds per `--seed`: dataset S draws its objects from base + S * SEED_STRIDE on.
-SEED_STRIDE = 1_000_000
-#: Objects are drawn in blocks of this many, each with the bench's settings table for a block of this
-#: size (`capture_settings` spreads each setting over the objects it is asked for): an object's capture
-#: does not depend on `--instances`, so a larger count extends the folder and a smaller one is a prefix.
-SETTINGS_BLOCK = 600
-#: The largest dataset seed (its objects' chain seeds stay below 2,000,000,000).
-MAX_SEED = 999
 #: Object i is a validation sample where its round of counts (i // MAX_MOVING_LINKS: one chain of each
 #: count) is the last of every VAL_EVERY rounds: validation holds every count alike (release 0.6.14's
 #: every tenth object held only 2-, 4- and 6-link chains, since an object's count follows its index).
 VAL_EVERY = 10
-
-
-@dataclass(frozen=True)
-class HandheldConfig:
-    """What `spare-twin dataset --handheld` draws."""
-
-    objects: int
-    """Captures drawn (object i has n = i % 6 + 1 moving links)."""
-    seed: int = 0
-    """Dataset seed: object i is chain seed HANDHELD_SEED_BASE + seed * SEED_STRIDE + i."""
-    renderers: tuple[str, ...] = ("pybullet", "raycast")
-    """Renderers of the captures, as the bench alternates them."""
-
-    def bench_config(self, block: int = 0) -> BenchConfig:
-        """The bench configuration of settings block `block` (objects block * SETTINGS_BLOCK on)."""
-        check_count("instances", self.objects, SEED_STRIDE, "the seeds of one dataset seed")
-        check_count("seed", self.seed, MAX_SEED, "the seeds kept for training captures", lower=0)
-        first = HANDHELD_SEED_BASE + self.seed * SEED_STRIDE + block * SETTINGS_BLOCK
-        return BenchConfig(objects=SETTINGS_BLOCK, seed=first, renderers=self.renderers)
-
-    def settings(self) -> list[CaptureSettings]:
-        """Object i's capture settings for i < `objects`: row i % SETTINGS_BLOCK of block i // SETTINGS_BLOCK."""
-        blocks = -(-self.objects // SETTINGS_BLOCK)
-        rows = [c for b in range(blocks) for c in capture_settings(self.bench_config(b))]
-        return rows[: self.objects]
 
 
 def split_of(index: int) -> str:
@@ -172,12 +141,9 @@ def _assemble(root: Path, rows: list[CaptureSettings]) -> dict:
 
 def handheld_dataset(out: str | Path, hc: HandheldConfig, workers: int = 1, progress: bool = True, force: bool = False):
     """Draw (or resume, or extend) the hand-held sample folder `out` (module doc); returns its manifest."""
+    check_handheld(out, hc, workers, force)
     cfg = hc.bench_config()
-    check_whole("workers", workers, least=1)
     rows = hc.settings()
-    earlier = Path(out) / "manifest.json"  # refused before `writing` starts a partial copy of it
-    if not force and earlier.is_file() and (seed := read_json(earlier).get("seed")) != hc.seed:
-        raise SpareTwinError(f"out {out}: holds hand-held samples of seed {seed}, not {hc.seed}")
     with writing(out, HANDHELD_KIND, (), force, resumable=True) as tmp:
         (tmp / "objects").mkdir(exist_ok=True)
         todo = [(tmp, c, cfg) for c in rows if not _done(tmp / "objects" / f"{c.name}.npz", c)]

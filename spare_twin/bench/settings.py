@@ -1,5 +1,7 @@
-"""What the sim-to-real bench captures: its configuration (`BenchConfig`) and the seeded table of
-per-object capture settings (`capture_settings`), a pure function of the configuration.
+"""What the sim-to-real bench captures: its configuration (`BenchConfig`), the seeded table of
+per-object capture settings (`capture_settings`), a pure function of the configuration, and whether a
+run may start (`check_bench`). Light to import (no renderer, no torch): `spare-twin bench sim2real`
+checks its options and its folder with it before it loads the stages (5 s of a new process).
 
 Seed ranges (docs/sim2real.md keeps the list): object i is `sample_chain(n = i % 6 + 1, seed = seed + i)`.
 7000-19023 were development and earlier held-out ranges of the project's own plain simulated sensor;
@@ -13,15 +15,20 @@ import dataclasses
 import math
 import re
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from spare_twin.config import MAX_MOVING_LINKS
 from spare_twin.errors import SpareTwinError
+from spare_twin.output import check_output
 from spare_twin.sim.choices import MAX_CLUTTER, RENDERERS
 from spare_twin.sim.effects import ALL_EFFECTS, CaptureEffects
 from spare_twin.sim.noise import load_noise
+from spare_twin.validate import check_whole
 
+#: The output kind of the bench's folder (`spare_twin.output`).
+BENCH = "bench sim2real"
 #: First object seed of the bench by default: the first range drawn with every effect (held out).
 BENCH_SEED = 30000
 #: Depth sensors of the captures, `NOISE:WxH`: the fitted SR300 and Kinect v1 noise models at their
@@ -177,3 +184,13 @@ def capture_settings(cfg: BenchConfig) -> list[CaptureSettings]:
             )
         )
     return rows
+
+
+def check_bench(out: str | Path, cfg: BenchConfig, workers: int = 1, force: bool = False) -> list[CaptureSettings]:
+    """`bench_sim2real(out, cfg, workers=workers, force=force)` may start: `cfg` is valid, `workers` at
+    least 1, and `out` absent, empty or an earlier bench (`force` replaces anything else); else an error
+    naming the parameter or the folder. Returns the capture settings (`capture_settings`)."""
+    settings = capture_settings(cfg)
+    check_whole("workers", workers)
+    check_output(out, BENCH, (), force)
+    return settings

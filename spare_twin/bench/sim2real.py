@@ -35,16 +35,13 @@ from spare_twin import __version__
 from spare_twin.bench import capture
 from spare_twin.bench.capture import SIDES
 from spare_twin.bench.scoring import COMBINED, bench_markdown, bench_table, write_png
-from spare_twin.bench.settings import BenchConfig, CaptureSettings, capture_settings
+from spare_twin.bench.settings import BENCH, BenchConfig, CaptureSettings, check_bench
 from spare_twin.compare.answers import Model, answers_of, model_of, resolve_models, score_answers
 from spare_twin.dataset.backends import start_pool
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.output import writing
-from spare_twin.validate import check_whole
 
-#: Output kind (`spare_twin.output`) of a whole bench folder.
-BENCH = "bench sim2real"
 #: What a per-object result means; a result of another format is recomputed.
 BENCH_FORMAT = 2
 TABLE_FILES = ("json", "md", "png")
@@ -173,8 +170,7 @@ def bench_sim2real(
     `out` is a resumable output (`spare_twin.output`): an interrupted run leaves its partial folder for
     the next one, which keeps every finished object whose settings and models (by content) are the
     same; `force` replaces a folder that is not an earlier bench."""
-    settings = capture_settings(cfg)  # validates cfg before anything is loaded or written
-    check_whole("workers", workers)
+    settings = check_bench(out, cfg, workers, force)  # before any model is loaded or anything written
     combined_model = model_of(COMBINED, ckpt.default_model("predict"))
     nets = resolve_models(models, cfg.frames[0])
     with writing(out, BENCH, (combined_model.path, *(m.path for m in nets)), force, resumable=True) as tmp:

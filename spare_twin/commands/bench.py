@@ -322,9 +322,7 @@ def _names(text: str, flag: str) -> tuple[str, ...]:
 
 
 def bench_sim2real(args: argparse.Namespace) -> int:
-    from spare_twin.bench.scoring import bench_markdown
-    from spare_twin.bench.settings import BenchConfig
-    from spare_twin.bench.sim2real import bench_sim2real as run_bench
+    from spare_twin.bench.settings import BenchConfig, check_bench
     from spare_twin.sim.effects import parse_effects
 
     with flags(effects="--effects"):
@@ -355,7 +353,13 @@ def bench_sim2real(args: argparse.Namespace) -> int:
         workers="--workers",
         force="--force",
     ):
+        # checked before the bench's modules are imported: torch and the measurement take 5 s to load
+        check_bench(args.out, cfg, args.workers, args.force)
+        from spare_twin.bench.sim2real import bench_sim2real as run_bench
+
         table, files = run_bench(args.out, cfg, models, args.workers, force=args.force)
+    from spare_twin.bench.scoring import bench_markdown
+
     text = "" if args.json else bench_markdown(table) + f"wrote {', '.join(files.values())}\n"
     return _report(args, table, text)
 

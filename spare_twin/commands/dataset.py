@@ -100,7 +100,7 @@ _RIG_ONLY = (
 
 
 def run_handheld(args: argparse.Namespace) -> int:
-    from spare_twin.bench.handheld_samples import HandheldConfig, handheld_dataset
+    from spare_twin.bench.handheld_config import HandheldConfig, check_handheld
     from spare_twin.errors import SpareTwinError
 
     given = [k for k, default in args.rig_only_defaults.items() if getattr(args, k) != default]
@@ -109,9 +109,14 @@ def run_handheld(args: argparse.Namespace) -> int:
         raise SpareTwinError(f"{flag}: not an option of --handheld (it draws the bench's captures)")
     if args.instances is None:
         raise SpareTwinError("--handheld: give --instances K")
+    workers = args.workers if args.workers is not None else 1
     with flags(instances="--instances", seed="--seed", workers="--workers", out="--out"):
+        # checked before the drawing's modules are imported: the measurement and torch take 5 s to load
         hc = HandheldConfig(objects=args.instances, seed=args.seed if args.seed is not None else 0)
-        m = handheld_dataset(args.out, hc, args.workers or 1, force=args.force)
+        check_handheld(args.out, hc, workers, args.force)
+        from spare_twin.bench.handheld_samples import handheld_dataset
+
+        m = handheld_dataset(args.out, hc, workers, force=args.force)
     s, r = m["samples"], m["rejected"]
     print(
         f"{args.out}/samples.npz: {s['train']} training and {s['val']} validation samples from {m['objects']} "
