@@ -8,7 +8,7 @@ from dataclasses import asdict
 import numpy as np
 import pytest
 import torch
-from conftest import run_cli
+from conftest import refused_before_torch, run_cli
 
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.evaluate import Evaluation, evaluation_of
@@ -113,3 +113,21 @@ def test_evaluate_json_of_a_network_with_no_measurement_beside_it(untrained_geo,
     assert written["network"] == res["network"] and written["combined"] is None
     assert (tmp_path / "ev" / "confusion_matrix.png").is_file()
     assert not (tmp_path / "ev" / "confusion_matrix_combined.png").exists()
+
+
+@pytest.mark.parametrize(
+    "args, words",
+    [
+        (["--model", "nope.pt", "--data", "data"], ("nope.pt", "no such checkpoint")),
+        (["--data", "nope"], ("--data nope", "no such folder")),
+        (["--model", "nope.pt", "--data", "nope"], ("nope.pt",)),
+        (["--data", "data", "--batch-size", "0"], ("--batch-size 0",)),
+        (["--data", "data", "--max-samples", "0"], ("--max-samples 0",)),
+        (["--data", "data", "--default-for", "predict"], ("--default-for", "ship")),
+    ],
+)
+def test_a_missing_checkpoint_or_data_folder_is_said_before_torch_is_loaded(args, words, tmp_path):
+    """A missing checkpoint or data folder, or a count below 1: said before the evaluation's modules
+    (torch and the network: 5 s of a new process) are imported, and nothing written."""
+    (tmp_path / "data").mkdir()
+    refused_before_torch(["evaluate", *args, "--out", "ev"], tmp_path, *words)

@@ -51,8 +51,9 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
-    from spare_twin.predict.evaluate import evaluate_model
+    from spare_twin.predict.evaluate_inputs import check_evaluate
 
+    default_for = [t for t in args.default_for.split(",") if t]
     with flags(
         model="--model",
         model_path="--model",
@@ -69,6 +70,10 @@ def run(args) -> int:
         default_for="--default-for",
         force="--force",
     ):
+        # checked before the evaluation's modules are imported: torch and the network take 5 s to load
+        check_evaluate(args.model, args.data, args.batch_size, args.max_samples, args.ship, default_for)
+        from spare_twin.predict.evaluate import evaluate_model
+
         ev = evaluate_model(
             args.model,
             args.data,
@@ -78,7 +83,7 @@ def run(args) -> int:
             args.out,
             args.max_samples,
             ship=args.ship,
-            default_for=[t for t in args.default_for.split(",") if t],
+            default_for=default_for,
             command="spare-twin " + " ".join(shlex.quote(a) for a in sys.argv[1:]),
             force=args.force,
         )

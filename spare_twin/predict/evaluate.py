@@ -17,13 +17,13 @@ from pathlib import Path
 
 import torch
 
-from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import evaluate as net_evaluate
 from spare_twin.nets.evaluate import EVALUATE, RECORDED, Evaluation, evaluation_of, recorded_metrics, write_outputs
 from spare_twin.output import writing
 from spare_twin.predict.combine import overrule
+from spare_twin.predict.evaluate_inputs import check_evaluate
 
 #: Which estimate the top-level `count_accuracy` and `E_L` are: the network's own.
 HEADLINE = "network"
@@ -110,8 +110,7 @@ def evaluate_model(
     evaluation.json and the confusion matrices (confusion_matrix.png: the network's,
     confusion_matrix_combined.png). With `ship`: the figures recorded in a copy of the checkpoint,
     shipped to `models_dir` as <ship>.pt with a model card, the default for the tasks in `default_for`."""
-    if ship is None and default_for:
-        raise SpareTwinError("default_for: only with ship (a model becomes a default when it is shipped)")
+    check_evaluate(model_path, data_dir, batch_size, max_samples, ship, default_for)
     if ship is not None:
         ckpt.check_ship(ship, default_for)  # before the evaluation: it may take minutes
     model_path = model_path or ckpt.default_model("predict")
