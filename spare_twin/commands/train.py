@@ -69,6 +69,7 @@ def register(sub) -> None:
 def run(args) -> int:
     from spare_twin.errors import SpareTwinError
     from spare_twin.io import read_json
+    from spare_twin.validate import check_folder
 
     if args.list_presets:
         from spare_twin.nets.presets import PRESETS
@@ -110,8 +111,12 @@ def run(args) -> int:
         config = dict(config)
         config["train"] = {**config.get("train", {}), **overrides}
     given = {f"train.{k}": OVERRIDE_FLAGS[k] for k in overrides}
-    with flags(**given):
+    data_dirs = args.data.split(",")
+    with flags(data_dir="--data", **given):
         preset = resolve(args.preset, config, args.config or "--preset")
+        # before torch is imported (3-5 s of a new process): a missing data folder is said at once
+        for data_dir in data_dirs:
+            check_folder("data_dir", data_dir)
     from spare_twin.nets.distributed import is_main_process
     from spare_twin.nets.train import train
 
@@ -123,7 +128,7 @@ def run(args) -> int:
     ):
         summary = train(
             preset,
-            args.data.split(","),
+            data_dirs,
             args.out,
             device=args.device,
             on_the_fly=args.on_the_fly,
