@@ -17,7 +17,8 @@ from spare_twin.config import sample_chain
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_json_atomic
 from spare_twin.nets.presets import PRESETS, TrainConfig
-from spare_twin.nets.profile_train import HANDHELD_FORMAT, SPLIT_CODES, profile_samples
+from spare_twin.nets.profile_train import profile_samples
+from spare_twin.nets.sample_folders import HANDHELD_FORMAT, SPLIT_CODES
 from spare_twin.recording import npz_bytes
 
 

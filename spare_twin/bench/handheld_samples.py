@@ -50,7 +50,7 @@ from spare_twin.dataset.backends import start_pool
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_bytes_atomic, write_json_atomic
 from spare_twin.measure.chain import measure_views
-from spare_twin.nets.profile_train import HANDHELD_FORMAT, HANDHELD_KIND, SPLIT_CODES
+from spare_twin.nets.sample_folders import HANDHELD_FORMAT, HANDHELD_KIND, SPLIT_CODES
 from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
 from spare_twin.observe.views import recording_views
 from spare_twin.output import writing

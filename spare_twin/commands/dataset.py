@@ -1,6 +1,7 @@
 """`spare-twin dataset --out DATA_DIR --instances K --seed S --workers W [--backend local|ray]
 [--ray-address ADDR]`: generate, resume or extend; with `--handheld`, the profile network's samples
-from hand-held captures drawn the bench's way (`bench.handheld_samples`)."""
+from hand-held captures drawn the bench's way (`bench.handheld_samples`); with `--analytic-profiles`, profile
+samples drawn straight from the printed chain's geometry (`nets.profile_analytic`)."""
 
 from __future__ import annotations
 
@@ -89,6 +90,14 @@ def register(sub) -> None:
         "profile sample for the profile network (the capture is deleted); chain seeds 1e9 + S * 1e6 + i, never a "
         "bench seed. Takes --out, --instances, --seed, --workers, --force only",
     )
+    p.add_argument(
+        "--analytic-profiles",
+        action="store_true",
+        help="instead of rig sequences: K profile samples drawn straight from the printed chain's geometry (joint "
+        "play, print error, one or both faces seen, noise, blur, holes, stray points; about 7 ms each) in the format "
+        "of --handheld's folders, for the profile network's training; chain seeds 3e9 + S * 1e6 + i. Takes --out, "
+        "--instances, --seed, --workers, --force only",
+    )
     p.set_defaults(func=run, rig_only_defaults={k: p.get_default(k) for k in _RIG_ONLY})
 
 
@@ -99,16 +108,39 @@ _RIG_ONLY = (
 )  # fmt: skip
 
 
-def run_handheld(args: argparse.Namespace) -> int:
-    from spare_twin.bench.handheld_config import HandheldConfig, check_handheld
+def _only_sample_options(args: argparse.Namespace, mode: str) -> None:
+    """Refuse the rig's options and a missing --instances with `mode` (--handheld, --analytic-profiles)."""
     from spare_twin.errors import SpareTwinError
 
     given = [k for k, default in args.rig_only_defaults.items() if getattr(args, k) != default]
     if given:
         flag = "--" + given[0].replace("_", "-")
-        raise SpareTwinError(f"{flag}: not an option of --handheld (it draws the bench's captures)")
+        raise SpareTwinError(f"{flag}: not an option of {mode} (it draws profile samples, not rig sequences)")
     if args.instances is None:
-        raise SpareTwinError("--handheld: give --instances K")
+        raise SpareTwinError(f"{mode}: give --instances K")
+
+
+def run_analytic(args: argparse.Namespace) -> int:
+    from spare_twin.errors import SpareTwinError
+
+    _only_sample_options(args, "--analytic-profiles")
+    if args.handheld:
+        raise SpareTwinError("--handheld, --analytic-profiles: give one kind of samples, not both")
+    workers = args.workers if args.workers is not None else 1
+    with flags(instances="--instances", seed="--seed", workers="--workers", out="--out"):
+        from spare_twin.nets.profile_analytic import AnalyticProfileConfig, analytic_profiles
+
+        c = AnalyticProfileConfig(samples=args.instances, seed=args.seed if args.seed is not None else 0)
+        m = analytic_profiles(args.out, c, workers, force=args.force)
+    s = m["samples"]
+    print(f"{args.out}/samples.npz: {s['train']} training and {s['val']} validation analytic profile samples")
+    return 0
+
+
+def run_handheld(args: argparse.Namespace) -> int:
+    from spare_twin.bench.handheld_config import HandheldConfig, check_handheld
+
+    _only_sample_options(args, "--handheld")
     workers = args.workers if args.workers is not None else 1
     with flags(instances="--instances", seed="--seed", workers="--workers", out="--out"):
         # checked before the drawing's modules are imported: the measurement and torch take 5 s to load
@@ -126,6 +158,8 @@ def run_handheld(args: argparse.Namespace) -> int:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.analytic_profiles:
+        return run_analytic(args)
     if args.handheld:
         return run_handheld(args)
     from spare_twin.dataset.build import PRESETS, generate_dataset

@@ -38,6 +38,7 @@ from spare_twin.io import read_json, write_bytes_atomic
 from spare_twin.measure.slots import measurement_slots
 from spare_twin.nets.presets import NetConfig, TrainConfig
 from spare_twin.nets.profile_samples import CaptureAugment, stored_sample
+from spare_twin.nets.sample_folders import HANDHELD_FORMAT, SPLIT_CODES
 from spare_twin.recording import npz_bytes
 from spare_twin.validate import usable_cores
 
@@ -48,11 +49,6 @@ VAL_FRAME_STRIDE = 4
 #: The code a cached evaluation split depends on: its source is part of the cache key.
 _OBSERVING_CODE = ("observe", "measure", "nets/profile_samples.py", "nets/profile_train.py")
 _PACKAGE = Path(__file__).resolve().parents[1]
-#: The output kind and format of a folder of hand-held profile samples (`spare-twin dataset --handheld`).
-HANDHELD_KIND = "dataset --handheld"
-HANDHELD_FORMAT = "spare-twin hand-held profile samples 1"
-#: `split` codes in a hand-held sample folder's samples.npz.
-SPLIT_CODES = {"train": 0, "val": 1}
 
 
 def _sequence_samples(job: tuple) -> dict:
