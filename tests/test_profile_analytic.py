@@ -14,13 +14,8 @@ from conftest import refused_before_torch, run_cli
 from spare_twin.config import sample_chain
 from spare_twin.errors import SpareTwinError
 from spare_twin.nets.presets import PRESETS, TrainConfig
-from spare_twin.nets.profile_analytic import (
-    ANALYTIC_SEED_BASE,
-    SEED_STRIDE,
-    AnalyticProfileConfig,
-    analytic_profiles,
-    analytic_sample,
-)
+from spare_twin.nets.profile_analytic import analytic_profiles, analytic_sample
+from spare_twin.nets.profile_analytic_config import ANALYTIC_SEED_BASE, SEED_STRIDE, AnalyticProfileConfig
 from spare_twin.nets.profile_train import profile_samples
 from spare_twin.nets.sample_folders import ANALYTIC_KIND, HANDHELD_FORMAT, SPLIT_CODES
 from spare_twin.observe.profile import Z_RANGE_PU

@@ -128,9 +128,12 @@ def run_analytic(args: argparse.Namespace) -> int:
         raise SpareTwinError("--handheld, --analytic-profiles: give one kind of samples, not both")
     workers = args.workers if args.workers is not None else 1
     with flags(instances="--instances", seed="--seed", workers="--workers", out="--out"):
-        from spare_twin.nets.profile_analytic import AnalyticProfileConfig, analytic_profiles
+        from spare_twin.nets.profile_analytic_config import AnalyticProfileConfig, check_analytic
 
         c = AnalyticProfileConfig(samples=args.instances, seed=args.seed if args.seed is not None else 0)
+        check_analytic(args.out, c, workers, args.force)  # before the drawing's modules (trimesh: 1-2 s)
+        from spare_twin.nets.profile_analytic import analytic_profiles
+
         m = analytic_profiles(args.out, c, workers, force=args.force)
     s = m["samples"]
     print(f"{args.out}/samples.npz: {s['train']} training and {s['val']} validation analytic profile samples")
