@@ -47,25 +47,18 @@ from spare_twin.nets.profile_analytic_config import (
     split_of,
 )
 from spare_twin.nets.sample_folders import ANALYTIC_KIND, HANDHELD_FORMAT, SPLIT_CODES
-from spare_twin.object.kinematics import joint_limits_rad, keepout_height_m, printed_lengths_m
+from spare_twin.object.kinematics import joint_limits_rad, keepout_height_m, printed_lengths_m, rot_y
 from spare_twin.observe.profile import ProfileConfig, draw_profile
 from spare_twin.output import writing
 from spare_twin.recording import npz_bytes
 from spare_twin.sim.motion import MotionConfig, random_motion
+from spare_twin.sim.rig import axis_angle
 
 
-def _rot(axis: int, angle_rad: float) -> np.ndarray:
-    i, j = [(1, 2), (2, 0), (0, 1)][axis]
-    c, s = math.cos(angle_rad), math.sin(angle_rad)
+def _turned(axis: np.ndarray, angle_rad: float) -> np.ndarray:
+    """4x4 rotation about the unit vector `axis` through the origin."""
     T = np.eye(4)
-    T[i, i], T[i, j], T[j, i], T[j, j] = c, -s, s, c
-    return T
-
-
-def _about(axis: np.ndarray, angle_rad: float) -> np.ndarray:
-    K = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-    T = np.eye(4)
-    T[:3, :3] = np.eye(3) + math.sin(angle_rad) * K + (1 - math.cos(angle_rad)) * K @ K
+    T[:3, :3] = axis_angle(axis, angle_rad)
     return T
 
 
@@ -100,7 +93,7 @@ def _link_frames(rng, spec, angles_rad, c: AnalyticProfileConfig) -> list[np.nda
     shift = c.joint_shift_mm / 1000.0 * np.sqrt(rng.random(n))
     shift_dir = rng.uniform(0, 2 * math.pi, n)
     az = rng.uniform(0, 2 * math.pi)
-    frames = [_about(np.array([math.cos(az), math.sin(az), 0.0]), math.radians(rng.uniform(*c.level_error_deg)))]
+    frames = [_turned(np.array([math.cos(az), math.sin(az), 0.0]), math.radians(rng.uniform(*c.level_error_deg)))]
     for k in range(1, n + 1):
         T = np.eye(4)
         T[:3, 3] = (
@@ -108,7 +101,7 @@ def _link_frames(rng, spec, angles_rad, c: AnalyticProfileConfig) -> list[np.nda
             spec.layer_pitch_mm / 1000.0,
             lengths[k - 1] + shift[k - 1] * math.sin(shift_dir[k - 1]),
         )
-        frames.append(frames[-1] @ T @ _rot(1, angles_rad[k - 1]) @ _rot(0, tilt[k - 1]))
+        frames.append(frames[-1] @ T @ rot_y(angles_rad[k - 1]) @ _turned(np.array([1.0, 0.0, 0.0]), tilt[k - 1]))
     return frames
 
 
