@@ -166,17 +166,30 @@ def run_cli(argv, capsys):
     return code, out, err
 
 
-def refused_before_torch(argv: list[str], cwd: Path, *words: str) -> None:
-    """`spare-twin ARGV`, run by `spare_twin.cli.main` in a new Python process in `cwd`, is refused before
-    torch is imported (3-5 s of a new process): exit code 1, one line on stderr naming each of `words`,
-    no traceback, and nothing in `cwd` added, removed or changed."""
-    probe = f"import sys; from spare_twin.cli import main; code = main({argv!r}); print(code, 'torch' in sys.modules)"
+def refused_before_torch(cases: list[tuple[list[str], tuple[str, ...]]], cwd: Path) -> None:
+    """Each `spare-twin ARGV` of `cases`, run by `spare_twin.cli.main` one after another in one new Python
+    process in `cwd`, is refused before torch is imported (3-5 s of a new process): exit code 1, one line
+    on stderr naming each of its words, no traceback; and nothing in `cwd` added, removed or changed.
+    One process for all of a command's cases, since a new one costs a second of the suite's time each."""
+    marker = "@@ next case @@"
+    probe = (
+        "import json, sys\nfrom spare_twin.cli import main\nresults = []\n"
+        f"for argv in {[argv for argv, _ in cases]!r}:\n"
+        f"    print({marker!r}, file=sys.stderr, flush=True)\n"
+        "    results.append([main(argv), 'torch' in sys.modules])\n"
+        "print(json.dumps(results))\n"
+    )
     before = tree(cwd)
     res = subprocess.run([sys.executable, "-c", probe], cwd=cwd, capture_output=True, text=True, timeout=120)
-    assert res.stdout.split() == ["1", "False"], (res.stdout, res.stderr)
-    lines = stderr_lines(res.stderr)
-    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
-    assert all(w in lines[0] for w in words), lines[0]
+    assert res.returncode == 0, res.stderr
+    results = json.loads(res.stdout.strip().splitlines()[-1])
+    stderrs = res.stderr.split(marker + "\n")[1:]
+    assert len(results) == len(stderrs) == len(cases), (res.stdout, res.stderr)
+    for (argv, words), (code, torch_loaded), stderr in zip(cases, results, stderrs):
+        assert (code, torch_loaded) == (1, False), (argv, code, torch_loaded, stderr)
+        lines = stderr_lines(stderr)
+        assert len(lines) == 1 and "Traceback" not in stderr, (argv, stderr)
+        assert all(w in lines[0] for w in words), (argv, lines[0])
     assert tree(cwd) == before
 
 

@@ -533,9 +533,15 @@ def test_bad_input(case, sources, tmp_path, monkeypatch, capsys):
 # -- compare: refused before torch is loaded -------------------------------------------------------
 
 
-@pytest.mark.parametrize(
-    "argv, words",
-    [
+def test_compare_refuses_before_torch_is_loaded(printed_object, rig_rec, tmp_path):
+    """A missing input, a missing checkpoint or an output that is not compare's: said before the
+    comparison's modules (torch and the stages: 5 s of a new process) are imported, and nothing written."""
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    (tmp_path / "notes.txt").write_text("mine")
+    for side in ("object", "real"):
+        (tmp_path / "pairs" / "a" / side).mkdir(parents=True)
+    cases = [
         (["--object", "nope", "--real", "nope2"], ("nope", "not a folder")),
         (["--object", "{obj}", "--real", "nope"], ("nope", "not a folder")),
         (["--object", "{obj}"], ("--real",)),
@@ -545,19 +551,12 @@ def test_bad_input(case, sources, tmp_path, monkeypatch, capsys):
         (["--object", "{obj}", "--real", "{rec}", "--sim-out", "{obj}"], ("is the input",)),
         (["--batch", "nope", "--out", "t"], ("--batch nope",)),
         (["--batch", "pairs", "--out", "mine"], ("mine", "--force")),
-    ],
-)
-def test_compare_refuses_before_torch_is_loaded(argv, words, printed_object, rig_rec, tmp_path):
-    """A missing input, a missing checkpoint or an output that is not compare's: said before the
-    comparison's modules (torch and the stages: 5 s of a new process) are imported, and nothing written."""
-    (tmp_path / "mine").mkdir()
-    (tmp_path / "mine" / "notes.txt").write_text("mine")
-    (tmp_path / "notes.txt").write_text("mine")
-    for side in ("object", "real"):
-        (tmp_path / "pairs" / "a" / side).mkdir(parents=True)
+    ]
     rec = Path(rig_rec.root)
-    argv = [a.format(obj=printed_object.root, rec=rec) for a in argv]
-    refused_before_torch(["compare", *argv], tmp_path, *words)
+    formatted = [
+        (["compare", *[a.format(obj=printed_object.root, rec=rec) for a in argv]], words) for argv, words in cases
+    ]
+    refused_before_torch(formatted, tmp_path)
     assert not rec.with_name(rec.name + "_sim_twin").exists()
 
 

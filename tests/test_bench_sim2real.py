@@ -184,9 +184,12 @@ def test_bad_flags_are_one_line_naming_the_flag(args, flag, tmp_path, capsys):
     assert not (tmp_path / "b").exists()
 
 
-@pytest.mark.parametrize(
-    "args, words",
-    [
+def test_a_bad_option_or_folder_is_said_before_torch_is_loaded(tmp_path):
+    """A count out of range or a folder that is not a bench's: said before the bench's modules (torch, the
+    measurement: 5 s of a new process) are imported, and nothing written."""
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    cases = [
         (["--objects", "0"], ("--objects 0",)),
         (["--objects", "-3"], ("--objects -3",)),
         (["--workers", "0"], ("--workers 0",)),
@@ -194,14 +197,8 @@ def test_bad_flags_are_one_line_naming_the_flag(args, flag, tmp_path, capsys):
         (["--sim-frames", "0"], ("--sim-frames 0",)),
         (["--sensors", "kinect_v1:9x9"], ("--sensors",)),
         (["--out", "mine"], ("mine", "--force")),
-    ],
-)
-def test_a_bad_option_or_folder_is_said_before_torch_is_loaded(args, words, tmp_path):
-    """A count out of range or a folder that is not a bench's: said before the bench's modules (torch, the
-    measurement: 5 s of a new process) are imported, and nothing written."""
-    (tmp_path / "mine").mkdir()
-    (tmp_path / "mine" / "notes.txt").write_text("mine")
-    refused_before_torch(["bench", "sim2real", "--out", "b", *args], tmp_path, *words)
+    ]
+    refused_before_torch([(["bench", "sim2real", "--out", "b", *args], words) for args, words in cases], tmp_path)
 
 
 # the profile network's own estimate comes from the combined run; the temporal grey network reads 100

@@ -7,7 +7,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 from conftest import refused_before_torch
 
 from spare_twin.compare.demo import ALIGNED_LABEL, DEMO_CHAIN, REAL_LABEL
@@ -74,19 +73,16 @@ def test_demo_runs_end_to_end(tmp_path):
     assert len(errors) == 3 and max(errors) < 5.0, angles
 
 
-@pytest.mark.parametrize(
-    "args, words",
-    [
-        (["--model", "nope.pt"], ("nope.pt", "no such checkpoint")),
-        (["--out", "mine"], ("mine", "--force")),
-        (["--out", "notes.txt"], ("notes.txt", "--force")),
-        (["--out", "."], ("current folder",)),
-    ],
-)
-def test_a_missing_checkpoint_or_a_folder_not_the_demos_is_said_before_torch_is_loaded(args, words, tmp_path):
+def test_a_missing_checkpoint_or_a_folder_not_the_demos_is_said_before_torch_is_loaded(tmp_path):
     """A missing checkpoint or an output that is not a demo's: said before the demo's modules (torch and
     every stage: 5 s of a new process) are imported, and nothing written."""
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("mine")
     (tmp_path / "notes.txt").write_text("mine")
-    refused_before_torch(["demo", *args], tmp_path, *words)
+    cases = [
+        (["--model", "nope.pt"], ("nope.pt", "no such checkpoint")),
+        (["--out", "mine"], ("mine", "--force")),
+        (["--out", "notes.txt"], ("notes.txt", "--force")),
+        (["--out", "."], ("current folder",)),
+    ]
+    refused_before_torch([(["demo", *args], words) for args, words in cases], tmp_path)

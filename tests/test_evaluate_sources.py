@@ -115,19 +115,16 @@ def test_evaluate_json_of_a_network_with_no_measurement_beside_it(untrained_geo,
     assert not (tmp_path / "ev" / "confusion_matrix_combined.png").exists()
 
 
-@pytest.mark.parametrize(
-    "args, words",
-    [
+def test_a_missing_checkpoint_or_data_folder_is_said_before_torch_is_loaded(tmp_path):
+    """A missing checkpoint or data folder, or a count below 1: said before the evaluation's modules
+    (torch and the network: 5 s of a new process) are imported, and nothing written."""
+    (tmp_path / "data").mkdir()
+    cases = [
         (["--model", "nope.pt", "--data", "data"], ("nope.pt", "no such checkpoint")),
         (["--data", "nope"], ("--data nope", "no such folder")),
         (["--model", "nope.pt", "--data", "nope"], ("nope.pt",)),
         (["--data", "data", "--batch-size", "0"], ("--batch-size 0",)),
         (["--data", "data", "--max-samples", "0"], ("--max-samples 0",)),
         (["--data", "data", "--default-for", "predict"], ("--default-for", "ship")),
-    ],
-)
-def test_a_missing_checkpoint_or_data_folder_is_said_before_torch_is_loaded(args, words, tmp_path):
-    """A missing checkpoint or data folder, or a count below 1: said before the evaluation's modules
-    (torch and the network: 5 s of a new process) are imported, and nothing written."""
-    (tmp_path / "data").mkdir()
-    refused_before_torch(["evaluate", *args, "--out", "ev"], tmp_path, *words)
+    ]
+    refused_before_torch([(["evaluate", *args, "--out", "ev"], words) for args, words in cases], tmp_path)

@@ -73,25 +73,23 @@ def test_handheld_flags_are_checked_before_anything_is_written(tmp_path, capsys)
         assert not out.exists()
 
 
-@pytest.mark.parametrize(
-    "extra, words",
-    [
-        (["--instances", "-1"], ("--instances -1", "at least 1")),
-        (["--instances", "0"], ("--instances 0",)),
-        (["--instances", "2", "--seed", "1000"], ("--seed 1000", "at most 999")),
-        (["--instances", "2", "--workers", "0"], ("--workers 0", "at least 1")),
-        (["--instances", "2", "--out", "other"], ("other:", "not an earlier dataset --handheld output")),
-    ],
-)
-def test_a_bad_count_seed_workers_or_folder_is_said_before_torch_is_loaded(extra, words, tmp_path):
+def test_a_bad_count_seed_workers_or_folder_is_said_before_torch_is_loaded(tmp_path):
     """A count, seed or worker count out of range, or a folder that is not the command's output (one that
     only looks like another seed's samples; a real one of another seed is refused in
     `test_the_handheld_folder_resumes_and_refuses_another_seed`): said before the drawing's modules (the
     measurement and torch: 5 s of a new process) are imported, and nothing written."""
     (tmp_path / "other").mkdir()
     write_json_atomic(tmp_path / "other" / "manifest.json", {"format": HANDHELD_FORMAT, "seed": 3})
-    argv = ["dataset", "--handheld", "--out", "hh", *extra]
-    refused_before_torch(argv, tmp_path, *words)
+    cases = [
+        (["--instances", "-1"], ("--instances -1", "at least 1")),
+        (["--instances", "0"], ("--instances 0",)),
+        (["--instances", "2", "--seed", "1000"], ("--seed 1000", "at most 999")),
+        (["--instances", "2", "--workers", "0"], ("--workers 0", "at least 1")),
+        (["--instances", "2", "--out", "other"], ("other:", "not an earlier dataset --handheld output")),
+    ]
+    refused_before_torch(
+        [(["dataset", "--handheld", "--out", "hh", *extra], words) for extra, words in cases], tmp_path
+    )
 
 
 def _synthetic_handheld(folder, counts: list[int], splits: list[str]):

@@ -116,15 +116,13 @@ def test_the_folder_is_the_same_bytes_resumes_extends_and_is_read_by_training(tm
     assert item["x"].shape == (3, 64, 80) and int(item["n_links"]) == 1
 
 
-@pytest.mark.parametrize(
-    "argv, words",
-    [
+def test_bad_options_are_said_before_torch_is_loaded(tmp_path):
+    cases = [
         (["--instances", "0"], ("--instances",)),
         (["--instances", "6", "--seed", "1000"], ("--seed",)),
         (["--instances", "6", "--workers", "0"], ("--workers",)),
         (["--instances", "6", "--frames", "10"], ("--frames", "not an option of --analytic-profiles")),
         (["--instances", "6", "--handheld"], ("--handheld", "--analytic-profiles")),
-    ],
-)
-def test_bad_options_are_said_before_torch_is_loaded(argv, words, tmp_path):
-    refused_before_torch(["dataset", "--analytic-profiles", "--out", "ap", *argv], tmp_path, *words)
+    ]
+    argvs = [(["dataset", "--analytic-profiles", "--out", "ap", *argv], words) for argv, words in cases]
+    refused_before_torch(argvs, tmp_path)
