@@ -331,3 +331,39 @@ def test_the_reading_with_fewer_links_stands_where_it_fits_as_closely(monkeypatc
     monkeypatch.setattr(L, "split_layers", lambda *args: 0)
     monkeypatch.setattr(L, "past_last_layer", lambda labels: False)
     assert L.measure_layers(points, 0.08).n_links == chosen
+
+
+@pytest.mark.parametrize(
+    "comb, followed, chosen",
+    [
+        # bench seed 30421 (2 links): the comb put the second link's near half in the first link's layer
+        ((0.00325, False), (0.00015, False), "followed"),
+        ((0.00030, False), (0.00025, False), "comb"),  # a near tie keeps the comb's
+        ((0.00063, False), (0.00032, False), "followed"),
+        # bench seed 30431 (6 links): the comb read 53 of 1,004 points past layer 6 (no answer), the
+        # followed comb none
+        ((0.00032, True), (0.00063, False), "followed"),
+        ((0.00063, False), (0.00032, True), "comb"),
+    ],
+)
+def test_of_two_readings_with_one_count_the_one_that_misreads_nothing_and_fits_closer_stands(
+    monkeypatch, comb, followed, chosen
+):
+    """Two readings of the layers that count the same links: the one that misreads no plate
+    (`past_last_layer`) stands; where neither does, the followed comb's only where its chain holds its
+    points much closer (`FOLLOWED_RMS_SHARE`), since there the comb put a piece of one link in another's
+    layer and the joints between them where they are not."""
+    from spare_twin.measure import layers as L
+
+    points = np.column_stack([np.linspace(0, 0.2, 400), np.zeros(400), np.full(400, 0.03)])
+    readings = [(np.zeros(400, np.int64), np.zeros(400)), (np.ones(400, np.int64), np.zeros(400))]
+    lengths = {0: np.full(3, 1.0), 1: np.full(3, 2.0)}  # which reading stood, by its lengths
+    measured = [
+        L.LayerMeasurement(2, lengths[i], np.zeros(2), (200,) * 3, rms) for i, (rms, _) in enumerate((comb, followed))
+    ]
+    monkeypatch.setattr(L, "layer_readings", lambda *args: readings)
+    monkeypatch.setattr(L, "_measure_reading", lambda p, labels, *args: measured[int(labels[0])])
+    monkeypatch.setattr(L, "split_layers", lambda *args: 0)
+    monkeypatch.setattr(L, "past_last_layer", lambda labels: (comb, followed)[int(labels[0])][1])
+    stood = L.measure_layers(points, 0.08)
+    assert stood.n_links == 2 and stood.lengths_pu[0] == {"comb": 1.0, "followed": 2.0}[chosen]
