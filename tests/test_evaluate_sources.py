@@ -116,9 +116,12 @@ def test_evaluate_json_of_a_network_with_no_measurement_beside_it(untrained_geo,
 
 
 def test_a_missing_checkpoint_or_data_folder_is_said_before_torch_is_loaded(tmp_path):
-    """A missing checkpoint or data folder, or a count below 1: said before the evaluation's modules
-    (torch and the network: 5 s of a new process) are imported, and nothing written."""
+    """A missing checkpoint or data folder, a count below 1, an output that is not evaluate's or a
+    name `--ship` cannot take: said before the evaluation's modules (torch and the network: 5 s of a
+    new process) are imported, and nothing written."""
     (tmp_path / "data").mkdir()
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
     cases = [
         (["--model", "nope.pt", "--data", "data"], ("nope.pt", "no such checkpoint")),
         (["--data", "nope"], ("--data nope", "no such folder")),
@@ -126,5 +129,12 @@ def test_a_missing_checkpoint_or_data_folder_is_said_before_torch_is_loaded(tmp_
         (["--data", "data", "--batch-size", "0"], ("--batch-size 0",)),
         (["--data", "data", "--max-samples", "0"], ("--max-samples 0",)),
         (["--data", "data", "--default-for", "predict"], ("--default-for", "ship")),
+        (["--data", "data", "--ship", "../x"], ("--ship '../x'", "file stem")),
+        (["--data", "data", "--ship", "m", "--default-for", "nope"], ("--default-for", "unknown task 'nope'")),
     ]
-    refused_before_torch([(["evaluate", *args, "--out", "ev"], words) for args, words in cases], tmp_path)
+    argvs = [(["evaluate", *args, "--out", "ev"], words) for args, words in cases]
+    argvs += [
+        (["evaluate", "--data", "data", "--out", "mine"], ("mine", "--force")),
+        (["evaluate", "--data", "data", "--out", "data/ev"], ("data/ev", "inside the input")),
+    ]
+    refused_before_torch(argvs, tmp_path)

@@ -77,18 +77,27 @@ def test_bad_inputs_are_one_line_errors(synthetic_data, tmp_path, capsys):
     assert code == 1 and "bogus" in err
 
 
-def test_a_missing_data_folder_is_said_before_torch_is_loaded(tmp_path):
-    """A missing data folder or a bad count: said before the training's modules (torch: 3-5 s of a new
+def test_a_missing_data_folder_or_a_folder_not_a_run_is_said_before_torch_is_loaded(tmp_path):
+    """A missing data folder, a bad count, or a run folder it would not write (yours, the data's, a
+    finished run's; nothing to resume): said before the training's modules (torch: 3-5 s of a new
     process) are imported, and nothing written."""
     (tmp_path / "data").mkdir()
-    cases = [
-        (["--data", "nope"], ("--data nope", "no such folder")),
-        (["--data", "data,nope"], ("--data nope", "no such folder")),
-        (["--data", "data", "--epochs", "0"], ("--epochs 0",)),
-        (["--data", "data", "--workers", "-1"], ("--workers -1",)),
-    ]
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    (tmp_path / "done").mkdir()
+    (tmp_path / "done" / "last.pt").write_bytes(b"a run")
     train = ["train", "--preset", "profile-depth-multitask"]
-    refused_before_torch([([*train, *args, "--out", "run"], words) for args, words in cases], tmp_path)
+    cases = [
+        (["--data", "nope", "--out", "run"], ("--data nope", "no such folder")),
+        (["--data", "data,nope", "--out", "run"], ("--data nope", "no such folder")),
+        (["--data", "data", "--epochs", "0", "--out", "run"], ("--epochs 0",)),
+        (["--data", "data", "--workers", "-1", "--out", "run"], ("--workers -1",)),
+        (["--data", "data", "--out", "mine"], ("--out mine", "not a training run", "notes.txt")),
+        (["--data", "data", "--out", "data/run", "--force"], ("--out data/run", "data folder")),
+        (["--data", "data", "--out", "done"], ("--out done", "already holds a run")),
+        (["--data", "data", "--out", "run", "--resume"], ("--resume", "nothing to resume")),
+    ]
+    refused_before_torch([([*train, *args], words) for args, words in cases], tmp_path)
 
 
 def test_resume_continues_exactly(synthetic_data, tmp_path):

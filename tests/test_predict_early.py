@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import refused_before_torch
 
 from spare_twin.errors import SpareTwinError
 from spare_twin.predict.early import start_measuring
@@ -86,6 +87,17 @@ def test_the_measuring_path_imports_no_torch():
     )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
     assert out.strip() == "[]"
+
+
+def test_a_missing_folder_or_checkpoint_is_said_before_torch_is_loaded(sweep, tmp_path):
+    """No recording, or a checkpoint (`--model`) that is not there: said before torch is imported to
+    read the network (3 s of a new process), and nothing written."""
+    cases = [
+        (["predict", "nope"], ("nope", "not a folder")),
+        (["predict", str(sweep), "--model", "nope.pt"], ("nope.pt", "no such checkpoint")),
+        (["predict", "nope", "--model", "nope.pt", "--json"], ("nope.pt", "no such checkpoint")),
+    ]
+    refused_before_torch(cases, tmp_path)
 
 
 def _measuring_children(pid: int) -> list[int]:

@@ -71,7 +71,9 @@ def run(args) -> int:
         force="--force",
     ):
         # checked before the evaluation's modules are imported: torch and the network take 5 s to load
-        check_evaluate(args.model, args.data, args.batch_size, args.max_samples, args.ship, default_for)
+        check_evaluate(
+            args.model, args.data, args.batch_size, args.max_samples, args.ship, default_for, args.out, args.force
+        )
         from spare_twin.predict.evaluate import evaluate_model
 
         ev = evaluate_model(

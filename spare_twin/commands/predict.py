@@ -100,6 +100,7 @@ def _predicted(args, measuring):
     from spare_twin.commands.common import flags
     from spare_twin.predict.early import check_options, start_measuring
     from spare_twin.predict.parts import read_parts
+    from spare_twin.validate import check_file
 
     with flags(
         frame="--frame",
@@ -115,6 +116,8 @@ def _predicted(args, measuring):
     ):
         parts = read_parts(args.parts) if args.parts is not None else None
         check_options(args.frame, args.print_scale, args.n_links, args.yaw_hypotheses, args.device, args.answer, parts)
+        if args.model is not None:  # said before torch is imported to read it (3 s of a new process)
+            check_file(args.model, "checkpoint")
         if measuring is not None:
             start_measuring(args.recording, args.frame, args.camera, args.print_scale, parts, process=measuring)
         from spare_twin.predict.run import predict_recording

@@ -7,6 +7,7 @@ import json
 import os
 import shlex
 import sys
+from pathlib import Path
 
 from spare_twin.commands.common import flags
 
@@ -91,6 +92,7 @@ def run(args) -> int:
     if not args.preset and not args.config:
         raise SpareTwinError("--preset NAME or --config CFG_JSON is required (see --list-presets)")
     from spare_twin.nets.presets import resolve
+    from spare_twin.nets.run_folder import refused_run_folder
 
     config = read_json(args.config) if args.config else {}
     overrides = {
@@ -112,11 +114,15 @@ def run(args) -> int:
         config["train"] = {**config.get("train", {}), **overrides}
     given = {f"train.{k}": OVERRIDE_FLAGS[k] for k in overrides}
     data_dirs = args.data.split(",")
-    with flags(data_dir="--data", **given):
+    with flags(data_dir="--data", out_dir="--out", resume="--resume", **given):
         preset = resolve(args.preset, config, args.config or "--preset")
-        # before torch is imported (3-5 s of a new process): a missing data folder is said at once
+        # before torch is imported (3-5 s of a new process): a missing data folder, or a run folder
+        # that would be refused, is said at once
         for data_dir in data_dirs:
             check_folder("data_dir", data_dir)
+        problem = refused_run_folder(Path(args.out), [Path(d) for d in data_dirs], args.resume, args.force)
+        if problem is not None:
+            raise SpareTwinError(problem)
     from spare_twin.nets.distributed import is_main_process
     from spare_twin.nets.train import train
 

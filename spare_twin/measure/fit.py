@@ -177,6 +177,13 @@ class ChainResiduals:
         return np.concatenate([j_outside, j_gaps, j_free])
 
 
+#: Evaluations a start of the fit may take. A chain's fit settles in 20-150; one still moving after 200
+#: is a blurred capture's (points 4-5 mm RMS off any chain), whose own limit (100 per parameter,
+#: 800-1,000) took 1-3 s a start, 29 s of CPU in all on bench seed 30441, and moved it by under a
+#: millimetre and 0.03 mm RMS after 200.
+MAX_EVALUATIONS = 200
+
+
 def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tuple[np.ndarray, float]:
     """(x = [s0, L0..Ln, a1..an], rms) of the chain fitted to each layer's (M_k, 2) in-plane points:
     robust least squares from both starts (`_initial`, `_initial_sequential`), the lower cost kept."""
@@ -191,6 +198,7 @@ def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tupl
             bounds=(lo, hi),
             loss="soft_l1",
             f_scale=0.003,
+            max_nfev=MAX_EVALUATIONS,
         )
         for x0 in (_initial(points_sz_m, n, cfg), _initial_sequential(points_sz_m, n, cfg))
     ]

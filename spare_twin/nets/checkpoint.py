@@ -25,6 +25,7 @@ import torch
 
 from spare_twin.errors import SpareTwinError, first_line
 from spare_twin.io import read_json, write_bytes_atomic, write_json_atomic
+from spare_twin.nets.evaluate_names import check_ship
 from spare_twin.nets.models import input_norms
 from spare_twin.nets.presets import net_from_dict
 from spare_twin.nets.registry import build_model
@@ -32,7 +33,6 @@ from spare_twin.nets.registry import build_model
 FORMAT = "spare-twin-net"
 VERSION = 1
 MODELS_DIR = Path(__file__).resolve().parents[2] / "models"
-INDEX_TASKS = ("predict", "count-mv", "count-tmp", "lengths-mv", "e2e-mv", "e2e-tmp")
 
 
 def machine_description() -> str:
@@ -217,15 +217,6 @@ def default_model(task: str = "predict", models_dir: Path = MODELS_DIR) -> Path:
     if not path.is_file():
         raise SpareTwinError(f"model: none given, and the shipped default {name!r} is missing ({path})")
     return path
-
-
-def check_ship(name: str, tasks: Sequence[str]) -> None:
-    """`ship`'s arguments are usable: `name` is a file stem, every task one of INDEX_TASKS."""
-    if not name or not all(ch.isalnum() or ch in "_-." for ch in name) or name.startswith("."):
-        raise SpareTwinError(f"name {name!r}: a model name is letters, digits, '_', '-' or '.' (a file stem)")
-    for t in tasks:
-        if t not in INDEX_TASKS:
-            raise SpareTwinError(f"tasks: unknown task {t!r} (choose from {', '.join(INDEX_TASKS)})")
 
 
 def ship(ckpt_path: str | Path, name: str, tasks: Sequence[str], models_dir: Path = MODELS_DIR) -> Path:

@@ -22,13 +22,11 @@ from spare_twin.io import write_json_atomic
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets import metrics
 from spare_twin.nets.distributed import pick_device
+from spare_twin.nets.evaluate_names import EVALUATE
 from spare_twin.nets.plots import write_confusion_png
 from spare_twin.nets.sample_sources import samples_of
 from spare_twin.nets.train import run_inference, summarize
 from spare_twin.output import writing
-
-#: The output kind of `out_dir` (`spare_twin.output`).
-EVALUATE = "evaluate"
 
 
 @dataclass(frozen=True)

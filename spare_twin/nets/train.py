@@ -36,6 +36,7 @@ from spare_twin.nets.distributed import Group, session
 from spare_twin.nets.models import input_norms, model_inputs
 from spare_twin.nets.presets import NetConfig, Preset, TrainConfig, net_from_dict
 from spare_twin.nets.registry import architecture, build_model, decode
+from spare_twin.nets.run_folder import replaceable, run_folder_problem
 from spare_twin.nets.sample_sources import samples_of
 from spare_twin.output import writing
 
@@ -243,45 +244,12 @@ def _epoch_loader(train_src, data_dir, net, tr: TrainConfig, epoch: int, on_the_
     return loader, len(loader)
 
 
-#: What a run folder holds (and the temporaries of their atomic writes): a folder of these is a run.
-#: samples-<split>.npz: the observed samples of the networks that observe theirs (`nets.profile_train`).
-RUN_FILES = ("last.pt", "best.pt", "model.pt", "history.json", "learning_curve.png", "MODEL_CARD.md", "samples-")
-
-
-def _touches_data(out_dir: Path, data_dirs: list[Path]) -> Path | None:
-    """The data folder the run folder is, is inside or holds (never written, force or not), or None."""
-    out = out_dir.resolve()
-    for d in data_dirs:
-        data = Path(d).resolve()
-        if out == data or data in out.parents or out in data.parents:
-            return Path(d)
-    return None
-
-
-def _run_folder_problem(out_dir: Path, data_dirs: list[Path], resume: bool) -> str | None:
-    last_path = out_dir / "last.pt"
-    touched = _touches_data(out_dir, data_dirs)
-    if touched is not None:
-        return f"out_dir {out_dir}: is, is inside or holds the data folder {touched}; write the run elsewhere"
-    if resume:
-        return None if last_path.is_file() else f"resume: {last_path} does not exist (nothing to resume)"
-    if last_path.exists():
-        return f"out_dir {out_dir}: already holds a run (resume it, or write to another folder)"
-    if out_dir.exists() and not out_dir.is_dir():
-        return f"out_dir {out_dir}: exists and is not a folder"
-    if out_dir.is_dir():
-        other = [p.name for p in out_dir.iterdir() if not p.name.lstrip(".").startswith(RUN_FILES)]
-        if other:
-            return f"out_dir {out_dir}: not empty and not a training run (holds {other[0]}); write to a new folder"
-    return None
-
-
 def _start(data_dirs: list[Path], out_dir: Path, resume: bool, group: Group) -> dict | None:
     """Rank 0 checks the run folder, creates it or reads last.pt (on resume); every rank gets the state or
     the error."""
     error, state = None, None
     if group.is_main:
-        error = _run_folder_problem(out_dir, data_dirs, resume)
+        error = run_folder_problem(out_dir, data_dirs, resume)
         if error is None and resume:
             try:
                 state = ckpt.load(out_dir / "last.pt", "cpu")
@@ -323,7 +291,7 @@ def train(
     if on_the_fly and arch.observed_samples:
         raise SpareTwinError(f"on_the_fly: the {arch.name} network trains on samples it observes once, not on the fly")
     with session(device) as (group, dev):
-        if force and not resume and group.is_main and _replaceable(out_dir, data_dirs):
+        if force and not resume and group.is_main and replaceable(out_dir, data_dirs):
             with writing(out_dir, "train", inputs=data_dirs, force=True) as fresh:
                 summary = _train(preset, data_dirs, fresh, dev, group, on_the_fly, resume, command, progress)
             return {k: v.replace(str(fresh), str(out_dir)) if isinstance(v, str) else v for k, v in summary.items()}
@@ -336,11 +304,6 @@ def _same_net(checkpoint: dict, net: NetConfig) -> bool:
         return net_from_dict(checkpoint.get("net") or {}) == net
     except SpareTwinError:
         return False
-
-
-def _replaceable(out_dir: Path, data_dirs: list[Path]) -> bool:
-    """A run folder problem that `force` may settle: any but touching the data folder."""
-    return not _touches_data(out_dir, data_dirs) and _run_folder_problem(out_dir, data_dirs, resume=False) is not None
 
 
 def _open_sources(net: NetConfig, tr: TrainConfig, data_dirs: list[Path], out_dir: Path, main: bool, progress: bool):

@@ -110,9 +110,7 @@ def evaluate_model(
     evaluation.json and the confusion matrices (confusion_matrix.png: the network's,
     confusion_matrix_combined.png). With `ship`: the figures recorded in a copy of the checkpoint,
     shipped to `models_dir` as <ship>.pt with a model card, the default for the tasks in `default_for`."""
-    check_evaluate(model_path, data_dir, batch_size, max_samples, ship, default_for)
-    if ship is not None:
-        ckpt.check_ship(ship, default_for)  # before the evaluation: it may take minutes
+    check_evaluate(model_path, data_dir, batch_size, max_samples, ship, default_for)  # before minutes of work
     model_path = model_path or ckpt.default_model("predict")
     outputs = (
         contextlib.nullcontext(None)
