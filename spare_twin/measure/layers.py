@@ -389,7 +389,7 @@ def _measure_reading(
         return LayerMeasurement(None, None, None, per_layer)
     split_before: set[bytes] = set()
     # a layer split at a hidden joint and merged back comes round to the same layers again: their fit
-    # is kept (a blurred capture's fit runs to its 800-1,000 evaluations: bench seed 30441, 1-2 s each)
+    # is kept (a blurred capture's fit runs to the fit's limit of evaluations: bench seed 30441)
     fitted: dict[tuple[int, bytes], tuple[np.ndarray, float]] = {}
     while True:
         labels_n = np.clip(labels, 0, n)
