@@ -9,10 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from spare_twin.bench.settings import BenchConfig, CaptureSettings, capture_settings
-from spare_twin.errors import SpareTwinError
-from spare_twin.io import read_json
-from spare_twin.nets.sample_folders import HANDHELD_KIND
-from spare_twin.output import check_output
+from spare_twin.nets.sample_folders import HANDHELD_KIND, check_samples_folder
 from spare_twin.validate import check_count, check_whole
 
 #: Chain seeds of the training captures start here, far above every bench range (< 1,000,000).
@@ -59,7 +56,4 @@ def check_handheld(out: str | Path, hc: HandheldConfig, workers: int, force: boo
     empty or a folder of hand-held samples (`force` replaces anything else), and one already there has
     `hc`'s seed (`force` replaces one of another seed)."""
     check_whole("workers", workers, least=1)
-    check_output(out, HANDHELD_KIND, (), force)  # what `writing` checks, said before torch is loaded
-    earlier = Path(out) / "manifest.json"  # refused before `writing` starts a partial copy of it
-    if not force and earlier.is_file() and (seed := read_json(earlier).get("seed")) != hc.seed:
-        raise SpareTwinError(f"out {out}: holds hand-held samples of seed {seed}, not {hc.seed}")
+    check_samples_folder(out, HANDHELD_KIND, hc.seed, "hand-held samples", force)

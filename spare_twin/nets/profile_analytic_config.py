@@ -8,10 +8,7 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from spare_twin.errors import SpareTwinError
-from spare_twin.io import read_json
-from spare_twin.nets.sample_folders import ANALYTIC_KIND
-from spare_twin.output import check_output
+from spare_twin.nets.sample_folders import ANALYTIC_KIND, check_samples_folder
 from spare_twin.sim.effects import CaptureEffects
 from spare_twin.validate import check_count, check_whole
 
@@ -81,7 +78,4 @@ def check_analytic(out: str | Path, c: AnalyticProfileConfig, workers: int = 1, 
     empty or a folder of analytic samples (`force` replaces anything else), and one already there has
     `c`'s seed (`force` replaces one of another seed)."""
     check_whole("workers", workers, least=1)
-    check_output(out, ANALYTIC_KIND, (), force)
-    earlier = Path(out) / "manifest.json"  # refused before `writing` starts a partial copy of it
-    if not force and earlier.is_file() and (seed := read_json(earlier).get("seed")) != c.seed:
-        raise SpareTwinError(f"out {out}: holds analytic profile samples of seed {seed}, not {c.seed}")
+    check_samples_folder(out, ANALYTIC_KIND, c.seed, "analytic profile samples", force)
