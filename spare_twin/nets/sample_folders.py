@@ -1,7 +1,6 @@
 """Folders of ready profile samples (the profile network's training input beside the rig's datasets):
 their format, kinds and split codes, and whether a run may write one (`check_samples_folder`). Light
-to import, so that a command can check a folder before
-it loads torch.
+to import, so that a command can check a folder before it loads torch.
 
 Two commands write them, in the same format (`samples.npz`: `x`, `n`, `lengths`, `angles`, `split`;
 `manifest.json`): `spare-twin dataset --handheld` (captures drawn the bench's way and observed as
