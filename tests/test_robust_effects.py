@@ -217,6 +217,22 @@ def test_a_reading_past_the_last_layer_a_chain_can_have_loses():
     assert past_last_layer(one_comb[0]) and not past_last_layer(followed[0])
 
 
+def test_a_reading_whose_checks_end_far_looser_than_they_began_gives_no_count(monkeypatch):
+    """The rig view of bench seed 30485 (6 links, a 115 deg fold at the first joint, one frame of 8
+    cameras; its last link hidden): both readings' checks split layers at hidden joints and merged cut
+    plates round and round, from 5 links at 2.3 mm RMS down to 1 link at 6.1 mm, and `predict` answered
+    1. A reading that ends more than `MAX_LOOSENING` times looser than the closest chain it passed
+    through gives no count, and says why; without that rule it gives the 1."""
+    from spare_twin.measure import layers as L
+
+    points, dirs, print_scale, sign_known, _ = _bench_points("seed30485_rig")
+    m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
+    assert m.n_links is None and m.reason.startswith("the layers' reading did not settle"), m
+    assert "chain of 5 links at 2.3 mm (RMS) to 1 at 6.1 mm" in m.reason
+    monkeypatch.setattr(L, "MAX_LOOSENING", np.inf)
+    assert measure_layers(points, print_scale, sign_known, LayersConfig(), dirs).n_links == 1
+
+
 def test_a_side_in_the_projectors_shadow_still_counts(printed_object, tmp_path):
     rec = _render(printed_object, tmp_path / "shadow", shadows=True, baseline_m=0.075, flying_pixels=True)
     clean = _render(printed_object, tmp_path / "clean")
