@@ -217,7 +217,7 @@ def test_a_reading_past_the_last_layer_a_chain_can_have_loses():
     assert past_last_layer(one_comb[0]) and not past_last_layer(followed[0])
 
 
-def test_a_reading_whose_checks_end_far_looser_than_they_began_gives_no_count(monkeypatch):
+def test_a_reading_whose_checks_end_far_looser_than_its_closest_chain_gives_no_count(monkeypatch):
     """The rig view of bench seed 30485 (6 links, a 115 deg fold at the first joint, one frame of 8
     cameras; its last link hidden): both readings' checks split layers at hidden joints and merged cut
     plates round and round, from 5 links at 2.3 mm RMS down to 1 link at 6.1 mm, and `predict` answered
