@@ -91,8 +91,9 @@ def test_the_default_geometry_reads_the_same_capture_less_well(eight_mm, capsys)
     """Without --parts the chain is read with the default 6.4 mm pitch: link 5 sits 6.6 of those
     layers up, and a plate cut in two at a half-way mark fits as a link shorter than any printable
     one. That one is merged back (`measure.layers._unprintable_link`: the count holds; it was 6 before
-    the rule), but the lengths come out farther from the print's than with --parts (0.020 against
-    0.007 paper units at most on this capture). The JSON says the defaults were used."""
+    the rule), but the lengths come out farther from the print's than with --parts (0.010 against
+    0.007 paper units at most on this capture, measured on the 2 mm merge; 0.020 on the 3 mm one).
+    The JSON says the defaults were used."""
     _, obj, rec, parts = eight_mm
     j = _predict(rec, capsys)
     assert j["parts"]["layer_pitch_mm"] == 6.4 and j["parts"]["defaults"] is True
@@ -101,7 +102,7 @@ def test_the_default_geometry_reads_the_same_capture_less_well(eight_mm, capsys)
     error_default = np.abs(np.subtract(default["link_lengths_pu"], _truth(obj))).max()
     error_told = np.abs(np.subtract(told["link_lengths_pu"], _truth(obj))).max()
     assert default["n_links"] == told["n_links"] == N_LINKS
-    assert error_default > 2 * error_told, (error_default, error_told)
+    assert error_default > 1.3 * error_told, (error_default, error_told)
 
 
 def test_an_object_folder_or_config_gives_the_same_parts(eight_mm, capsys):

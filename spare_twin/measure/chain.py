@@ -107,10 +107,10 @@ def measure_views(
     if as_registered[1].n_links is not None or seen.frames is None or len(views) < MIN_FRAMES_TO_SPLIT:
         best = min(((on_object, measured), as_registered), key=_fit_rank)
         return dataclasses.replace(best[0], timings_s=seconds), best[1]
+    # as registered the sweep fused into no chain: brought into register on the object the whole
+    # sweep stands where it fits cleanly, else the closest of its parts
     why = "the whole did not fuse into one chain"
-    best = None
-    if measured.n_links is not None:
-        best = (dataclasses.replace(on_object, source=f"{on_object.source}: {why}"), measured)
+    best = None if measured.n_links is None else (on_object, measured)
     for part in SWEEP_PARTS:
         if best is not None and best[1].rms_m <= CLEAN_PART_RMS_M:
             break

@@ -115,10 +115,10 @@ class LayersConfig:
     min_layer_fraction: float = 0.03
     """... or fewer than this share of the links' points."""
     coverage_tolerance_m: float = 0.0025
-    """A plate sample this near a point of its layer is covered (about the points' spacing after the
-    3 mm voxel merge). Nothing else stops a free end (the base's top, the last link's tip) from
-    running on past its points, since a longer plate leaves fewer points outside: at 3.5 mm the ends
-    came out 1.5-3 mm long on hand-held captures."""
+    """A plate sample this near a point of its layer is covered (about the points' spacing: set for
+    the 3 mm merge measured until release 0.6.19, kept for the 2 mm one). Nothing else stops a free
+    end (the base's top, the last link's tip) from running on past its points, since a longer plate
+    leaves fewer points outside: at 3.5 mm the ends came out 1.5-3 mm long on hand-held captures."""
     max_stray_offset: float = 0.25
     """A top layer whose points' median plate centre is within this of its own layer is a link."""
     max_top_inside_parent: float = 0.8
@@ -147,7 +147,10 @@ class LayersConfig:
     play across the half-way mark between two layers (`_unprintable_link`)."""
     directions: int = 72
     """Link directions tried by the fit's second start (`_initial_sequential`)."""
-    max_points: int = 1500
+    max_points: int = 3500
+    """At most this many points are measured (evenly through their fixed order): a 2 mm merge of a
+    hand-held capture (`observe.points.PointsConfig.fine_voxel_m`) holds 1,600-2,900 above the socket
+    (six development captures), the rig's 96 x 128 views about 1,800."""
     joint_thickness: bool = True
     """Where the chain was seen from both sides of its plane, read its joints from how thick it stands
     there (`measure.joints`: a pin's overlap is two plates thick) before the plate centres' step."""
@@ -527,7 +530,10 @@ def measure_profile(
     profile found no chain)."""
     if profile.reason is not None or len(obj.points_m) == 0:
         return LayerMeasurement(None, None, None, ())
+    points_m, view_dirs = obj.points_m, obj.view_dirs
+    if obj.fine_points_m is not None and len(obj.fine_points_m):
+        points_m, view_dirs = obj.fine_points_m, obj.fine_view_dirs
     T_profile_table = np.linalg.inv(profile.T_table_profile)
-    points = obj.points_m @ T_profile_table[:3, :3].T + T_profile_table[:3, 3]
-    view_dirs = None if obj.view_dirs is None else obj.view_dirs @ profile.T_table_profile[:3, :3]
+    points = points_m @ T_profile_table[:3, :3].T + T_profile_table[:3, 3]
+    view_dirs = None if view_dirs is None else view_dirs @ profile.T_table_profile[:3, :3]
     return measure_layers(points, print_scale, profile.sign_known, cfg, view_dirs)

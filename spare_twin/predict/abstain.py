@@ -18,10 +18,12 @@ from spare_twin.predict.parts import TRAINED_PARTS, parts_words
 #: A network's count stands only where its most probable class has at least this probability.
 MIN_COUNT_PROBABILITY = 0.5
 #: Fewer points on the links than this (the layers' points, base included) are too few to count a
-#: chain by: a simulated hand-held capture gives 800-1,500 (of at most 1,500 kept), the training rig's
-#: 96 x 128 views 800-900; single real frames of a shelf with no chain, 29 and 69, on which the
-#: profile network said 6 links at p = 0.96 and 0.98.
-MIN_CHAIN_POINTS = 100
+#: chain by. Set on the 3 mm merge measured until release 0.6.19, at 100: a simulated hand-held capture
+#: gave 800-1,500, the training rig's 96 x 128 views 800-900; single real frames of a shelf with no
+#: chain, 29 and 69, on which the profile network said 6 links at p = 0.96 and 0.98. The layers are
+#: now measured on the 2 mm merge (`PointsConfig.fine_voxel_m`), which holds (3 / 2)² as many points
+#: on the same surface (1,600-2,900 on hand-held captures, about 1,800 in the rig).
+MIN_CHAIN_POINTS = 225
 #: Views that go less far round the chain than this (degrees about its base axis) see its plates from
 #: one side: the profile network was trained on captures from at least 3 neighbouring cameras of an
 #: 8-camera ring (90 deg and more), and the layer measurement was developed on such sweeps. Single
