@@ -246,6 +246,22 @@ def test_views_that_slipped_are_brought_into_register_on_the_object(handheld_rec
     assert all(np.array_equal(a.T_world_camera, b.T_world_camera) for a, b in zip(again, register_on_object(slipped)))
 
 
+def test_the_layers_are_measured_on_a_finer_merge_of_the_same_readings(handheld_rec):
+    """The object's readings merged again on the 2 mm grid (`fine_points_m`) hold about (3 / 2)² as
+    many points as the 3 mm merge, lie on the object's points, and are what the layers measure;
+    without them the layers measure the 3 mm points."""
+    seen = observe_chain(Recording.open(handheld_rec), PRINT_SCALE)
+    obj = seen.object
+    ratio = len(obj.fine_points_m) / len(obj.points_m)
+    assert 1.6 < ratio < 2.8, ratio
+    assert cKDTree(obj.points_m).query(obj.fine_points_m)[0].max() <= PointsConfig().voxel_m
+    assert obj.fine_view_dirs.shape == obj.fine_points_m.shape
+    fine = measure_profile(obj, seen.profile, PRINT_SCALE)
+    coarse = measure_profile(dataclasses.replace(obj, fine_points_m=None), seen.profile, PRINT_SCALE)
+    assert fine.n_links == coarse.n_links == 2
+    assert sum(fine.points_per_layer) > 1.6 * sum(coarse.points_per_layer), (fine, coarse)
+
+
 def test_a_registered_sweep_is_measured_with_its_views_brought_into_register(handheld_rec, monkeypatch):
     """A sweep registered here whose views slipped along the table (up to 2 deg, 6 mm) fuses into a
     chain of the wrong count (or, with the flying pixels removed, a blurred one); `measured_chain`

@@ -125,7 +125,8 @@ class ObjectPoints:
     zero where no reading had a surface around it."""
     fine_points_m: np.ndarray | None = None
     """float64 (M, 3) table frame: the object's readings merged on the finer `fine_voxel_m` grid, for
-    the layer measurement (None: measure `points_m`)."""
+    the layer measurement (None: measure `points_m`): those within a coarse voxel of `points_m`, so
+    what the clutter split and the flying-pixel check took from the object goes with it."""
     fine_view_dirs: np.ndarray | None = None
     """float64 (M, 3) table frame: `view_dirs` of `fine_points_m`."""
 
@@ -384,7 +385,7 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
     # the table and the scene from a coarse read; the object from a read as fine as the voxels
     readings = read_views(views, cfg, keep=near_target)
     points, colors, directions, normals = merged(readings, cfg.voxel_m)
-    fine_points, _, fine_directions, _ = merged(readings, cfg.fine_voxel_m)
+    fine_points, _, fine_directions, _ = merged((readings[0], None, readings[2], None), cfg.fine_voxel_m)
     local = rigid(T_table_world, points)
     above = where_objects_stand(local, cfg)
     if cfg.remove_flying and above.any():  # floaters seen through by other views join nothing
