@@ -385,7 +385,8 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
     # the table and the scene from a coarse read; the object from a read as fine as the voxels
     readings = read_views(views, cfg, keep=near_target)
     points, colors, directions, normals = merged(readings, cfg.voxel_m)
-    fine_points, _, fine_directions, _ = merged((readings[0], None, readings[2], None), cfg.fine_voxel_m)
+    read_points, _, read_directions, _ = readings
+    fine_points, _, fine_directions, _ = merged((read_points, None, read_directions, None), cfg.fine_voxel_m)
     local = rigid(T_table_world, points)
     above = where_objects_stand(local, cfg)
     if cfg.remove_flying and above.any():  # floaters seen through by other views join nothing
@@ -408,10 +409,16 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
         scored.append((-len(members) / (1.0 + dist / 0.1), lab, members))
     if not scored:
         return nothing
+    # each fine point goes with the object it lies within a coarse voxel of (one query for all:
+    # objects are more than `cluster_link_m` apart, so no fine point is that near two)
     fine_local = rigid(T_table_world, fine_points)
+    reach, nearest = cKDTree(local[idx]).query(fine_local, distance_upper_bound=cfg.voxel_m)
+    on = reach <= cfg.voxel_m
+    fine_label = np.full(len(fine_local), -1)
+    fine_label[on] = point_label[nearest[on]]
     candidates = []
-    for _, _, members in sorted(scored, key=lambda x: (x[0], x[1])):
-        fine = _near(fine_local, local[members], cfg.voxel_m)
+    for _, lab, members in sorted(scored, key=lambda x: (x[0], x[1])):
+        fine = fine_label == lab
         candidates.append(
             ObjectPoints(
                 local[members],
@@ -426,13 +433,6 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
             )
         )
     return candidates
-
-
-def _near(points: np.ndarray, object_points: np.ndarray, distance_m: float) -> np.ndarray:
-    """Mask of `points` within `distance_m` of one of `object_points`: a fine merge's points that
-    belong to an object of the coarse merge (a coarse voxel's mean lies within its own voxel, and
-    so within a voxel of the fine means of its readings)."""
-    return cKDTree(object_points).query(points, distance_upper_bound=distance_m)[0] <= distance_m
 
 
 def _single_linkage(points: np.ndarray, link_m: float) -> np.ndarray:
