@@ -12,6 +12,7 @@ from plate_chain import Plate, chain_faces
 from scipy.spatial import cKDTree
 
 from spare_twin.measure import fit
+from spare_twin.measure import layers as L
 from spare_twin.measure.layers import LayersConfig, measure_layers, measure_profile
 from spare_twin.measure.medians import grouped_medians
 from spare_twin.observe.chain import find_chain
@@ -59,6 +60,23 @@ def test_a_clean_chain_is_measured(lengths, angles):
     assert -0.0625 < error_pu[-1] < 0.02
     err = np.degrees(np.abs(m.angles_rad - angles))
     assert err.max() < 10.0 and err.mean() < 5.0
+
+
+@pytest.mark.parametrize("sign_known", [True, False])
+def test_a_chain_whose_profile_read_its_sign_wrong_is_turned_round(sign_known):
+    """A tall base with a short link at its top (bench seed 30462: 1.74 and 0.30 paper units), its
+    profile half turned (s and t negated: the link a layer behind the base): its links are put ahead
+    again from the points off the base's column, and counted. A sign read wrong is turned half round,
+    so the joint angles keep the chain's own sign; one not read stays a mirror image in s. The chain
+    as the profile read it right is left as it is."""
+    lengths, angles = [1.74, 0.3], [-1.15]
+    p, v = plates(lengths, angles, np.random.default_rng(2), noise_m=0.0005)
+    right = measure_layers(p, SCALE, sign_known=sign_known, view_dirs=v)
+    turned = measure_layers(p * [-1, -1, 1], SCALE, sign_known=sign_known, view_dirs=v * [-1, -1, 1])
+    for m in (right, turned):
+        assert m.n_links == 1 and np.abs(m.lengths_pu - lengths).max() < 0.05
+    assert right.angles_rad[0] == pytest.approx(angles[0], abs=0.1)
+    assert turned.angles_rad[0] == pytest.approx(angles[0] if sign_known else -angles[0], abs=0.1)
 
 
 def test_noise_shear_and_sides_out_of_register():
@@ -309,28 +327,57 @@ def test_grouped_medians_are_numpys_to_the_bit():
 @pytest.mark.parametrize(
     "comb, followed, chosen",
     [
-        ((5, 0.00023), (4, 0.00019), 4),  # bench seed 30219: one link read as two by the comb, and looser
-        ((5, 0.00023), (4, 0.00023), 4),  # a tie: the links too many fit no closer
-        ((4, 0.00030), (5, 0.00025), 4),  # more links a little closer: a near tie keeps the comb's
-        ((4, 0.00080), (5, 0.00030), 5),  # ... much closer (FOLLOWED_RMS_SHARE): the followed comb's
-        ((5, 0.00090), (4, 0.00120), 5),  # fewer links, looser: the comb's as before
+        # bench seed 30538 (5 links): in the plane four links fit about as closely as five; across it
+        # the comb's fourth layer held the fifth link too, and the step between them
+        ((4, 0.00101, 0.00076), (5, 0.00105, 0.00053), 5),
+        # bench seed 30574 (5 links): a link too many is no closer across the plane, and a little looser in it
+        ((6, 0.00034, 0.00060), (5, 0.00032, 0.00060), 5),
+        ((5, 0.00023, 0.0004), (4, 0.00019, 0.0004), 4),  # bench seed 30219: one link read as two, and looser
+        ((5, 0.00023, 0.0004), (4, 0.00023, 0.0004), 4),  # a tie: the fewer links
+        ((4, 0.00080, 0.0004), (5, 0.00030, 0.0004), 5),
     ],
 )
-def test_the_reading_with_fewer_links_stands_where_it_fits_as_closely(monkeypatch, comb, followed, chosen):
+def test_of_two_readings_that_count_otherwise_the_chain_closer_in_and_across_the_plane_stands(
+    monkeypatch, comb, followed, chosen
+):
     """Two readings of the layers that count otherwise and misread nothing (`split_layers`,
-    `past_last_layer`): a count with a link too many fits its points a little closer, never looser, so
-    the reading with fewer links stands where it fits at least as closely; otherwise the followed
-    comb's only where it fits much closer."""
-    from spare_twin.measure import layers as L
-
+    `past_last_layer`): the one whose chain lies closer to its points in the plane (RMS) and across it
+    (the layers' spread about their plates' planes) together stands, the fewer links on a tie."""
     points = np.column_stack([np.linspace(0, 0.2, 400), np.zeros(400), np.full(400, 0.03)])
     readings = [(np.zeros(400, np.int64), np.zeros(400)), (np.ones(400, np.int64), np.zeros(400))]
-    measured = [L.LayerMeasurement(n, np.ones(n + 1), np.zeros(n), (200,) * (n + 1), r) for n, r in (comb, followed)]
+    measured = [
+        L.LayerMeasurement(n, np.ones(n + 1), np.zeros(n), (200,) * (n + 1), r, t_rms_m=t)
+        for n, r, t in (comb, followed)
+    ]
     monkeypatch.setattr(L, "layer_readings", lambda *args: readings)
     monkeypatch.setattr(L, "_measure_reading", lambda p, labels, *args: measured[int(labels[0])])
     monkeypatch.setattr(L, "split_layers", lambda *args: 0)
     monkeypatch.setattr(L, "past_last_layer", lambda labels: False)
     assert L.measure_layers(points, 0.08).n_links == chosen
+
+
+def test_a_layer_that_holds_two_links_spreads_across_the_plane_by_the_step_between_them():
+    """`layer_t_rms_m`: two plates in a line a pitch apart across the plane, read as one layer, spread
+    by a quarter pitch about the best plane through them; read as two layers, or one plate leaning out
+    of its layer by 3 deg read as one, they spread by the sensor's noise only."""
+    rng = np.random.default_rng(3)
+    pitch = L.LayersConfig().layer_pitch_m
+    first = Plate(np.array([0.0, 0.02]), np.array([0.0, 0.06]), 0.0, lean_rad=np.radians(3.0))
+    second = Plate(
+        np.array([0.0, 0.06]), np.array([0.0, 0.10]), pitch + 0.04 * np.sin(np.radians(3.0)), np.radians(3.0)
+    )
+    points, views, owner = chain_faces([first, second], 0.002, rng, noise_m=0.0005, with_plates=True)
+    sz, t = points[:, [0, 2]], points[:, 1] - views[:, 1] * L.LayersConfig().half_thickness_m  # plate centres
+    one_layer = L.layer_t_rms_m(sz, t, np.ones(len(t), np.int64), 1)
+    two_layers = L.layer_t_rms_m(sz, t, owner.astype(np.int64), 1)
+    leaning = L.layer_t_rms_m(sz[owner == 0], t[owner == 0], np.zeros(int((owner == 0).sum()), np.int64), 0)
+    assert one_layer > 0.2 * pitch  # a line through a step of h leaves h / 4 (RMS)
+    assert two_layers < 0.0007 and leaning < 0.0007  # the noise, 0.5 mm
+    assert one_layer > 2.5 * max(two_layers, leaning)
+    for a, b in ((0.00101, 0.00076), (0.00034, None)):
+        m = L.LayerMeasurement(1, np.ones(2), np.zeros(1), (9, 9), a, t_rms_m=b)
+        assert m.cost_m == pytest.approx(np.hypot(a, b or 0.0))
+    assert L.LayerMeasurement(None, None, None, ()).cost_m is None
 
 
 @pytest.mark.parametrize(
@@ -353,8 +400,6 @@ def test_of_two_readings_with_one_count_the_one_that_misreads_nothing_and_fits_c
     (`past_last_layer`) stands; where neither does, the followed comb's only where its chain holds its
     points much closer (`FOLLOWED_RMS_SHARE`), since there the comb put a piece of one link in another's
     layer and the joints between them where they are not."""
-    from spare_twin.measure import layers as L
-
     points = np.column_stack([np.linspace(0, 0.2, 400), np.zeros(400), np.full(400, 0.03)])
     readings = [(np.zeros(400, np.int64), np.zeros(400)), (np.ones(400, np.int64), np.zeros(400))]
     lengths = {0: np.full(3, 1.0), 1: np.full(3, 2.0)}  # which reading stood, by its lengths

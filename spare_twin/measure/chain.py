@@ -66,26 +66,26 @@ def measure_views(
     observation's `timings_s` gain "measurement", all summed over the tries.
 
     A sweep registered here is measured with its views brought into register on the object
-    (`observe.on_object`): views that slipped by a degree or a few millimetres along the table blur
-    the chain's 6.4 mm layers (a 2-link RealSense sweep fused 14.9 mm RMS off any chain as registered,
-    0.3 mm after). Where both give a chain, the closer fit (RMS) is kept: matching on the object can
-    also pull apart a sweep that registration had in register (bench seed 30119, 6 links: 0.3 mm as
-    registered, 2 links at 3.9 mm after; on the 120 captures of seeds 30006-30125 this changed that
-    count alone). Where the views as registered give no chain at all (the fused object too wide, not
-    standing on a 12 mm column, or blurred centimetres off any chain), the registration is off by more
-    than the object can pull back somewhere, and the sweep's parts are looked at too: its first half,
-    its second half and its middle half, each registered on its own and brought into register on the
-    object. Registration errors come in runs: a sweep's views slide apart along the table where the
-    object shows little (a Kinect at a metre and more), and the half without that run fuses into one
-    chain; so does the half of a sweep before (or after) the object was bumped. The try whose chain
-    fits its points best (lowest RMS) is kept; one within `CLEAN_PART_RMS_M` ends the search. A tracked
-    sweep, registered here from its tracker's poses (`observe.views`), is brought into register on the
-    object the same way but not split (`observe.views` keeps none of its frames): the tracker holds
-    the frames of every part where the whole put them (on the development captures no part of a
-    tracked sweep read right where the whole did not), and a part of an empty table's sweep read its
-    clutter as 5 links. Other views with poses (a rig, a sweep whose frames confirm its own poses,
-    views given in memory) are looked at once.
-    Views that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
+    (`observe.on_object`): views that slipped by a degree or a few millimetres along the table blur the
+    chain's 6.4 mm layers (a 2-link RealSense sweep fused 14.9 mm RMS off any chain as registered, 0.3
+    mm after). Where both give a chain, the closer one is kept (`LayerMeasurement.cost_m`: RMS in the
+    plane and across it): matching on the object can also pull apart a sweep that registration had in
+    register (bench seed 30119, 6 links: 0.3 mm as registered, 2 links at 3.9 mm after; on the 120
+    captures of seeds 30006-30125 this changed that count alone). Where the views as registered give no
+    chain at all (the fused object too wide, not standing on a 12 mm column, or blurred centimetres off
+    any chain), the registration is off by more than the object can pull back somewhere, and the sweep's
+    parts are looked at too: its first half, its second half and its middle half, each registered on its
+    own and brought into register on the object. Registration errors come in runs: a sweep's views slide
+    apart along the table where the object shows little (a Kinect at a metre and more), and the half
+    without that run fuses into one chain; so does the half of a sweep before (or after) the object was
+    bumped. The try whose chain fits its points best (`_fit_rank`) is kept; one within
+    `CLEAN_PART_RMS_M` ends the search. A tracked sweep, registered here from its tracker's poses
+    (`observe.views`), is brought into register on the object the same way but not split
+    (`observe.views` keeps none of its frames): the tracker holds the frames of every part where the
+    whole put them (on the development captures no part of a tracked sweep read right where the whole
+    did not), and a part of an empty table's sweep read its clutter as 5 links. Other views with poses
+    (a rig, a sweep whose frames confirm its own poses, views given in memory) are looked at once. Views
+    that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
     `spare_twin.predict.abstain` gives no answer on them)."""
     views = list(seen.views)
     geometry = Geometry(ProfileConfig.for_parts(parts), LayersConfig.for_parts(parts))
@@ -119,7 +119,7 @@ def measure_views(
             list(part_views.views), REGISTERED_SWEEP, part_views.registration_s, print_scale, geometry
         )
         seconds = _add(seconds, piece.timings_s)
-        if m.n_links is not None and (best is None or m.rms_m < best[1].rms_m):
+        if m.n_links is not None and (best is None or _fit_rank((piece, m)) < _fit_rank(best)):
             share = f"frames {100 * part[0]:.0f}-{100 * part[1]:.0f} % of the sweep"
             best = (dataclasses.replace(piece, source=f"{piece.source}, {share}: {why}"), m)
     found, measured = best or as_registered
@@ -137,9 +137,10 @@ def _on_object(views: list[PosedView], source: str, registration_s: float, print
 
 
 def _fit_rank(found: tuple[ChainObservation, LayerMeasurement]) -> tuple[bool, float]:
-    """Sort key of a try: a measured chain before none, then the closer fit (RMS); ties keep the first."""
+    """Sort key of a try: a measured chain before none, then the chain closer to its points in the plane
+    and across it (`LayerMeasurement.cost_m`); ties keep the first."""
     m = found[1]
-    return (m.n_links is None, m.rms_m if m.n_links is not None else 0.0)
+    return (m.n_links is None, m.cost_m if m.n_links is not None else 0.0)
 
 
 def _add(a: dict, b: dict, but: str | None = None) -> dict:

@@ -11,8 +11,10 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    a point may take either label, and lies inside both plates anyway. A second reading follows the
    comb along the chain from the base (`measure.plates`: joint play leans the links off one comb).
    Where the two count otherwise, the one that puts no two separate pieces of the chain in one layer
-   is kept (`split_layers`), and between two such, the followed one where its chain fits clearly
-   better (`FOLLOWED_RMS_SHARE`).
+   is kept (`split_layers`), and between two such, the one whose chain lies closer to its points in
+   the plane and across it (`LayerMeasurement.cost_m`: a layer holding two links holds the whole
+   pitch's step between them, which no one plate's plane fits); with one count, the followed one where
+   its chain fits clearly better (`FOLLOWED_RMS_SHARE`).
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
    2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
 3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
@@ -179,6 +181,17 @@ class LayerMeasurement:
     reason: str | None = None
     """Why a chain the layers count cannot be measured (its points do not lie on one); then
     `n_links` is None."""
+    t_rms_m: float | None = None
+    """RMS spread of the points' plate centres across the plane about each layer's own slanted
+    plane (`layer_t_rms_m`): how well the layers hold one plate each."""
+
+    @property
+    def cost_m(self) -> float | None:
+        """How far the chain is from its points in the plane and across it (RMS, `rms_m` and
+        `t_rms_m` together): what tells two readings of other counts apart (`measure_layers`)."""
+        if self.rms_m is None:
+            return None
+        return float(np.hypot(self.rms_m, self.t_rms_m or 0.0))
 
 
 def layer_readings(
@@ -272,13 +285,36 @@ def count_links(labels: np.ndarray, cfg: LayersConfig) -> tuple[int | None, tupl
     return n, tuple(int(c) for c in counts)
 
 
-def _links_ahead(p: np.ndarray) -> np.ndarray:
-    """(3,) +-1 factors that turn t so that the upper links lie at larger t than the base link's
-    foot: for a chain whose sign the profile could not read (upright, no link leaving the base's
-    column)."""
-    low = p[:, 2] < np.percentile(p[:, 2], 15)
-    high = p[:, 2] > np.percentile(p[:, 2], 70)
-    return np.array([1.0, -1.0 if np.median(p[high, 1]) < np.median(p[low, 1]) else 1.0, 1.0])
+def _links_ahead(p: np.ndarray, view_t: np.ndarray, sign_known: bool, cfg: LayersConfig) -> np.ndarray:
+    """(3,) +-1 factors on (s, t, z) that put the links at larger t than the base link: every moving
+    link is a layer or more past it. Read from the plate centres (faces moved half a thickness by the
+    side they were seen from) of the points off the base's column (beyond two plate widths of the
+    axis) against the column's. Where the profile read a sign (`sign_known`), it is turned only where
+    those points lie more than half a pitch behind the column: the profile reads its sign from the
+    faces of everything above the base's first 4.5 cm, and a tall base with a short link at its top
+    (bench seed 30462: 1.74 and 0.30 paper units, seen more from one side) outweighed the link. Where
+    it read none and no link leaves the column, the column's top against its foot."""
+    centre_t = p[:, 1] - np.sign(np.where(np.abs(view_t) > cfg.min_side_cosine, view_t, 0.0)) * cfg.half_thickness_m
+    column = np.abs(p[:, 0]) < cfg.half_width_m
+    off = np.abs(p[:, 0]) > 2 * cfg.half_width_m
+    if off.sum() >= MIN_OFF_COLUMN_POINTS and column.sum() >= MIN_OFF_COLUMN_POINTS:
+        ahead_m = float(np.median(centre_t[off]) - np.median(centre_t[column]))
+        behind = ahead_m < (-cfg.layer_pitch_m / 2 if sign_known else 0.0)
+    elif sign_known:
+        behind = False
+    else:
+        low = p[:, 2] < np.percentile(p[:, 2], 15)
+        high = p[:, 2] > np.percentile(p[:, 2], 70)
+        behind = np.median(p[high, 1]) < np.median(p[low, 1])
+    if not behind:
+        return np.ones(3)
+    # a sign read wrong turns the profile half round about the base axis (s too, so that the joint
+    # angles keep the object's sign); one not read stays a mirror image in s, as found
+    return np.array([-1.0 if sign_known else 1.0, -1.0, 1.0])
+
+
+#: Points off the base's column that tell a chain's sign (`_links_ahead`).
+MIN_OFF_COLUMN_POINTS = 20
 
 
 def measure_layers(
@@ -295,8 +331,8 @@ def measure_layers(
     v = np.zeros_like(p) if view_dirs is None else np.asarray(view_dirs, np.float64)
     keep = p[:, 2] > cfg.min_height_m
     p, v = p[keep], v[keep]
-    if not sign_known and len(p):
-        flip = _links_ahead(p)
+    if len(p):
+        flip = _links_ahead(p, v[:, 1], sign_known, cfg)
         p, v = p * flip, v * flip
     if len(p) > cfg.max_points:
         pick = np.linspace(0, len(p) - 1, cfg.max_points).astype(np.int64)
@@ -309,10 +345,12 @@ def measure_layers(
         thickness = Thickness(p[:, [0, 2]], p[:, 1], chain_sides(v[:, 1], cfg.min_side_cosine), cfg.layer_pitch_m)
         if not thickness.holds(2 * cfg.half_thickness_m):
             thickness = None
-    as_designed = _measure_reading(p, *readings[0], print_scale, cfg, thickness)
+    # one plate-centre t for every reading (the comb's, its shear out): their layers' spreads compare
+    plate_t_m = readings[0][1] * cfg.layer_pitch_m
+    as_designed = _measure_reading(p, *readings[0], print_scale, cfg, thickness, plate_t_m)
     if len(readings) == 1 or np.array_equal(readings[1][0], readings[0][0]):  # the rig: one reading
         return as_designed
-    followed = _measure_reading(p, *readings[1], print_scale, cfg, thickness)
+    followed = _measure_reading(p, *readings[1], print_scale, cfg, thickness, plate_t_m)
     if followed.n_links is None:
         return as_designed
     if as_designed.n_links is None:
@@ -323,20 +361,18 @@ def measure_layers(
         return as_designed if misread[0] < misread[1] else followed
     if followed.n_links == as_designed.n_links:  # one count: the closer chain places its joints
         return followed if followed.rms_m <= FOLLOWED_RMS_SHARE * as_designed.rms_m else as_designed
-    fewer, more = sorted((as_designed, followed), key=lambda m: m.n_links)
-    if fewer.rms_m <= more.rms_m:
-        return fewer  # a link too many fits a little closer, never looser: the fewer links hold the points
-    return followed if followed.rms_m <= FOLLOWED_RMS_SHARE * as_designed.rms_m else as_designed
+    # other counts, neither reading splitting a link: the chain closer to its points in the plane and
+    # across it (`LayerMeasurement.cost_m`). In the plane alone a link too many or too few fits about
+    # as closely (bench seed 30538, 5 links: 4 at 1.01 mm, 5 at 1.05 mm); across it, a layer that holds
+    # two links holds the step between them (0.76 against 0.53 mm). A tie: the fewer links
+    return min((as_designed, followed), key=lambda m: (m.cost_m, m.n_links))
 
 
-#: Where the two readings give other counts and neither splits a link (`split_layers`), the reading
-#: with fewer links stands where its chain holds its points at least as closely (RMS); otherwise the
-#: layers read along the chain (`measure.plates`) replace the comb's where their chain holds its points
-#: at least this much closer: each reading fits its own chain well, a count with a link too many a
-#: little better, so a near tie keeps the comb's. Where both count the same links, the followed
-#: reading's stands on the same terms: the comb had put a piece of one link in another's layer, and
-#: the fit then puts the joint between them where it is not (bench seed 30421, 2 links: RMS 3.3 mm
-#: against 0.15 mm, the last link measured 18 mm for 29 mm).
+#: Where the two readings count the same links, the layers read along the chain (`measure.plates`)
+#: replace the comb's where their chain holds its points at least this much closer (RMS): the comb
+#: had put a piece of one link in another's layer, and the fit then puts the joint between them where
+#: it is not (bench seed 30421, 2 links: RMS 3.3 mm against 0.15 mm, the last link measured 18 mm for
+#: 29 mm); a near tie keeps the comb's.
 FOLLOWED_RMS_SHARE = 0.65
 #: A SPARE chain has links in layers 0..6 only; where more than this share of the points lie past the
 #: sixth link's layer, the reading (or the object) is thicker than any chain (`past_last_layer`;
@@ -392,6 +428,7 @@ def _measure_reading(
     print_scale: float,
     cfg: LayersConfig,
     thickness: Thickness | None = None,
+    plate_t_m: np.ndarray | None = None,
 ) -> LayerMeasurement:
     """The chain of points `p` (s, t, z) with one reading of their layers: counted, fitted and
     checked (a top layer that is no link, a plate cut in two by its lean, a link too short to
@@ -459,7 +496,25 @@ def _measure_reading(
         )
         return LayerMeasurement(None, None, None, per_layer, rms, reason)
     angles = (x[n + 2 :] + np.pi) % (2 * np.pi) - np.pi
-    return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms)
+    t_rms = None if plate_t_m is None else layer_t_rms_m(p[:, [0, 2]], plate_t_m, labels_n, n)
+    return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms, t_rms_m=t_rms)
+
+
+def layer_t_rms_m(sz_m: np.ndarray, plate_t_m: np.ndarray, labels: np.ndarray, n: int) -> float:
+    """RMS of the points' plate centres across the plane (`plate_t_m`) about each layer 0..n's own
+    plane fitted through them (t linear in s and z: a plate leaning out of its layer by the joints'
+    play is still one plane). A layer that holds two links holds a step of a whole pitch where they
+    meet, which no plane fits; a layer that holds one plate holds the sensor's noise only."""
+    squares, count = 0.0, 0
+    for k in range(n + 1):
+        mine = labels == k
+        if mine.sum() < 4:
+            continue
+        design = np.column_stack([sz_m[mine], np.ones(int(mine.sum()))])
+        coef, *_ = np.linalg.lstsq(design, plate_t_m[mine], rcond=None)
+        squares += float(np.sum((plate_t_m[mine] - design @ coef) ** 2))
+        count += int(mine.sum())
+    return float(np.sqrt(squares / count)) if count else 0.0
 
 
 def _unprintable_link(x: np.ndarray, n: int, cfg: LayersConfig) -> int | None:
