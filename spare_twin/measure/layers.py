@@ -207,7 +207,7 @@ def layer_readings(
     side are each one plate's face."""
     side = np.zeros(len(t_m), np.int64)
     if view_t is not None:
-        side = np.where(view_t > cfg.min_side_cosine, 1, np.where(view_t < -cfg.min_side_cosine, -1, 0))
+        side = chain_sides(view_t, cfg.min_side_cosine)
     centre_t = t_m - side * cfg.half_thickness_m
     centre_t = _align_sides(s_m, z_m, centre_t, side, cfg)
     sz = np.stack([s_m, z_m], 1)
@@ -294,7 +294,7 @@ def _links_ahead(p: np.ndarray, view_t: np.ndarray, sign_known: bool, cfg: Layer
     faces of everything above the base's first 4.5 cm, and a tall base with a short link at its top
     (bench seed 30462: 1.74 and 0.30 paper units, seen more from one side) outweighed the link. Where
     it read none and no link leaves the column, the column's top against its foot."""
-    centre_t = p[:, 1] - np.sign(np.where(np.abs(view_t) > cfg.min_side_cosine, view_t, 0.0)) * cfg.half_thickness_m
+    centre_t = p[:, 1] - chain_sides(view_t, cfg.min_side_cosine) * cfg.half_thickness_m
     column = np.abs(p[:, 0]) < cfg.half_width_m
     off = np.abs(p[:, 0]) > 2 * cfg.half_width_m
     if off.sum() >= MIN_OFF_COLUMN_POINTS and column.sum() >= MIN_OFF_COLUMN_POINTS:
