@@ -36,7 +36,9 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    thickness (`measure.joints`: at a pin two plates overlap, a layer thicker than one plate; a cut
    plate is one plate thick there), and a layer as thick as a joint somewhere along it holds two
    links and is split there first; elsewhere a cut plate is told by its plate centres' step where
-   the two layers meet (`_cut_plate`: a fraction of a layer, not a joint's whole layer).
+   the two layers meet (`_cut_plate`: a fraction of a layer, not a joint's whole layer), and a layer
+   whose plate centres step by half a pitch or more along it is split there (`measure.steps`: a
+   Kinect's smoothing ran a straight run of short links into one layer).
 5. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
    to measure, and the measurement says why (a capture blurred by views out of register); so is a
    reading whose checks end on a chain far looser than the closest one they passed through
@@ -65,6 +67,7 @@ from spare_twin.measure.joints import (
 )
 from spare_twin.measure.medians import grouped_medians
 from spare_twin.measure.plates import local_comb_layers
+from spare_twin.measure.steps import stepped_layer
 from spare_twin.observe.points import ObjectPoints
 from spare_twin.observe.profile import ChainProfile, parts_geometry_m
 
@@ -449,12 +452,16 @@ def _measure_reading(
             fitted[key] = fit_layers(layers, n, cfg)
         x, rms = fitted[key]
         centres = [centre_layers[labels_n == k] for k in range(n + 1)]
-        starts, _ = plate_segments(x, n, cfg)
+        starts, ends = plate_segments(x, n, cfg)
         # a layer as thick as a joint somewhere along it holds two links: split it first, as a plate
         # fitted to two links puts the joints after it where they are not
         split = None
-        if thickness is not None and n < MAX_MOVING_LINKS and len(split_before) < MAX_MOVING_LINKS:
-            split = hidden_joint(thickness, layers, starts)
+        if n < MAX_MOVING_LINKS and len(split_before) < MAX_MOVING_LINKS:
+            if thickness is not None:
+                split = hidden_joint(thickness, layers, starts)
+            if split is None and plate_t_m is not None:  # or where its plate centres step by a joint's
+                layers_t = [plate_t_m[labels_n == k] for k in range(n + 1)]
+                split = stepped_layer(layers, layers_t, starts, ends, cfg.layer_pitch_m)
         if split is not None:
             j, at = split  # its points beyond the pin, and every layer above, move up one
             above = (labels > j) | ((labels_n == j) & ((p[:, [0, 2]] - at) @ (at - starts[j]) > 0))
