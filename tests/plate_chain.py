@@ -63,3 +63,20 @@ def chain_faces(plates: list[Plate], spacing_m: float, rng=None, noise_m: float 
     if rng is not None and noise_m > 0:
         p = p + rng.normal(0.0, noise_m, p.shape)
     return (p, v, np.concatenate(owners)) if with_plates else (p, v)
+
+
+def leaning_chain(lengths_m, angles_deg, leans_deg, pitch_m: float, seed: int = 0):
+    """(points (N, 3) s, t, z, view directions, each point's link, the joints (n, 2) in the plane): a
+    chain whose links lean out of their layers about their pins, as joint play leans a print, seen
+    from both sides (grid 2.5 mm, noise 0.8 mm)."""
+    plates = [Plate(np.array([0.0, 0.0]), np.array([0.0, lengths_m[0]]), 0.0)]
+    joint, phi, joints = np.array([0.0, lengths_m[0]]), 0.0, []
+    for k, (length, angle, lean) in enumerate(zip(lengths_m[1:], angles_deg, leans_deg), start=1):
+        phi += np.radians(angle)
+        d = np.array([np.sin(phi), np.cos(phi)])
+        t_at_pin = plates[-1].centre_t_m(joint[None])[0] + pitch_m  # a layer past its parent at the pin
+        end = joint + d * (length - (HALF_WIDTH_M if k == len(angles_deg) else 0.0))
+        plates.append(Plate(joint.copy(), end, t_at_pin, np.radians(lean)))
+        joints.append(joint.copy())
+        joint = joint + d * length
+    return *chain_faces(plates, 0.0025, np.random.default_rng(seed), 0.0008, with_plates=True), np.array(joints)

@@ -4,7 +4,7 @@ layers' rounding ran two links into one."""
 
 import numpy as np
 import pytest
-from plate_chain import HALF_WIDTH_M, Plate, chain_faces
+from plate_chain import leaning_chain
 
 from spare_twin.measure import layers as L
 from spare_twin.measure.joints import Thickness, chain_sides, hidden_joint, joint_excess_layers
@@ -16,20 +16,7 @@ LEANS_DEG = (3.0, -2.5, 4.0, -1.5)
 
 
 def _chain(lengths_m=LENGTHS_M, angles_deg=ANGLES_DEG, leans_deg=LEANS_DEG, seed=0):
-    """(points (N, 3) s, t, z, view directions, each point's link, the joints (n, 2) in the plane): a
-    chain whose links lean out of their layers about their pins, as joint play leans a print, seen
-    from both sides."""
-    plates = [Plate(np.array([0.0, 0.0]), np.array([0.0, lengths_m[0]]), 0.0)]
-    joint, phi, joints = np.array([0.0, lengths_m[0]]), 0.0, []
-    for k, (length, angle, lean) in enumerate(zip(lengths_m[1:], angles_deg, leans_deg), start=1):
-        phi += np.radians(angle)
-        d = np.array([np.sin(phi), np.cos(phi)])
-        t_at_pin = plates[-1].centre_t_m(joint[None])[0] + PITCH_M  # a layer past its parent at the pin
-        end = joint + d * (length - (HALF_WIDTH_M if k == len(angles_deg) else 0.0))
-        plates.append(Plate(joint.copy(), end, t_at_pin, np.radians(lean)))
-        joints.append(joint.copy())
-        joint = joint + d * length
-    return *chain_faces(plates, 0.0025, np.random.default_rng(seed), 0.0008, with_plates=True), np.array(joints)
+    return leaning_chain(lengths_m, angles_deg, leans_deg, PITCH_M, seed)
 
 
 def _thickness(p, v) -> Thickness:

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from plate_chain import Plate, chain_faces
+from plate_chain import Plate, chain_faces, leaning_chain
 from scipy.spatial import cKDTree
 
 from spare_twin.measure import fit
@@ -227,6 +227,32 @@ def test_a_chain_blurred_by_views_out_of_register_is_not_measured(lengths, angle
     assert blurred.rms_m > 0.01 and "off the best chain" in blurred.reason
     sharp = with_ghost(3.0)
     assert sharp.n_links == len(angles) and sharp.reason is None
+
+
+def test_a_chain_whose_layers_are_not_told_apart_gives_no_count():
+    """A second copy of a 4-link chain (leaning plates, 0.8 mm noise) turned 15 deg about its base
+    axis, as a sweep's two halves out of register round the chain leave it: it still lies within a
+    few millimetres of one chain in the plane, read as 2 links, but its layers' plate centres spread
+    across the plane as far as a link's step to the next layer, and no count stands
+    (`layers_told_apart`; bench seed 30643, a 2-link sweep registered from its frames alone, read
+    as 4 with its layers spread 3.8 mm). 3 deg apart the chain is counted."""
+    p, v, _, _ = leaning_chain(
+        (0.07, 0.045, 0.06, 0.04, 0.035), (50.0, -70.0, 40.0, 60.0), (3.0, -2.5, 4.0, -1.5), PITCH_M
+    )
+    cfg = LayersConfig()
+
+    def with_ghost(deg):
+        a = math.radians(deg)
+        turn = np.array([[math.cos(a), -math.sin(a), 0.0], [math.sin(a), math.cos(a), 0.0], [0.0, 0.0, 1.0]])
+        m = measure_layers(np.concatenate([p, p @ turn.T]), SCALE, view_dirs=np.concatenate([v, v @ turn.T]))
+        return m, L.layers_told_apart(m, cfg)
+
+    read, told = with_ghost(15.0)
+    assert read.n_links == 2 and read.t_rms_m > L.MAX_LAYER_SPREAD_PITCHES * PITCH_M  # the layers alone: wrong
+    assert told.n_links is None and told.lengths_pu is None and "not told apart" in told.reason
+    assert told.rms_m == read.rms_m and told.points_per_layer == read.points_per_layer  # the evidence kept
+    read, told = with_ghost(3.0)
+    assert read.n_links == told.n_links == 4 and told.reason is None
 
 
 def _fit_input(lengths, angles, noise_m=0.001, seed=6):

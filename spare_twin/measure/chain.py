@@ -10,7 +10,7 @@ import time
 from dataclasses import dataclass
 
 from spare_twin.config import PartDims
-from spare_twin.measure.layers import LayerMeasurement, LayersConfig, measure_profile
+from spare_twin.measure.layers import LayerMeasurement, LayersConfig, layers_told_apart, measure_profile
 from spare_twin.observe.chain import ChainObservation, observe_views
 from spare_twin.observe.on_object import register_on_object
 from spare_twin.observe.points import PosedView
@@ -86,9 +86,18 @@ def measure_views(
     did not), and a part of an empty table's sweep read its clutter as 5 links. Other views with poses
     (a rig, a sweep whose frames confirm its own poses, views given in memory) are looked at once. Views
     that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
-    `spare_twin.predict.abstain` gives no answer on them)."""
-    views = list(seen.views)
+    `spare_twin.predict.abstain` gives no answer on them). The chain kept gives a count only where its
+    layers are told apart (`measure.layers.layers_told_apart`)."""
     geometry = Geometry(ProfileConfig.for_parts(parts), LayersConfig.for_parts(parts))
+    found, measured = _best_try(seen, print_scale, progress, min_arc_deg, geometry)
+    return found, layers_told_apart(measured, geometry.layers)
+
+
+def _best_try(
+    seen: PosedViews, print_scale: float, progress: bool, min_arc_deg: float, geometry: Geometry
+) -> tuple[ChainObservation, LayerMeasurement]:
+    """The tries of `measure_views`, and the one kept."""
+    views = list(seen.views)
 
     def measured_as_registered():
         found = observe_views(views, seen.source, seen.registration_s, print_scale, profile_cfg=geometry.profile)

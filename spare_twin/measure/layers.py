@@ -42,14 +42,16 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
 5. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
    to measure, and the measurement says why (a capture blurred by views out of register); so is a
    reading whose checks end on a chain far looser than the closest one they passed through
-   (`MAX_LOOSENING`): its evidence contradicts itself.
+   (`MAX_LOOSENING`): its evidence contradicts itself; and so is a chain whose layers' plate centres
+   spread across the plane as far as a link's step to the next layer (`layers_told_apart`, applied to
+   the chain `measure.chain` keeps): its layers, and its count, are not told apart.
 
 Deterministic: medians, sorted KD-tree queries and scipy's least squares with fixed starts.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.sparse import coo_matrix
@@ -390,9 +392,30 @@ MAX_PAST_LAST_LAYER_FRACTION = 0.05
 #: the 144 recordings of seeds 30438-30485 (development), 420 readings, the next loosest ended 1.9, 1.8
 #: and twice 1.6 times looser than their closest chain, each a reading that lost to the other one.
 MAX_LOOSENING = 2.0
+#: A measured chain whose layers' plate centres spread across the plane (`layer_t_rms_m`) by more than
+#: this many layer pitches (RMS) gives no count (`layers_told_apart`): a line through a whole pitch's
+#: step leaves a quarter of it, so its layers spread, on average, as far as one that holds two links.
+#: On the 575 recordings of seeds 30438-30629 (development: real, clean renders, rig) the answers'
+#: layers spread 0.1-1.5 mm where their count was right; the three answers past 1.6 mm were wrong (real
+#: 30628, 5 links read as 4 at 1.72 mm; clean renders 30537 and 30441, 1.63 and 1.62 mm).
+MAX_LAYER_SPREAD_PITCHES = 0.25
 #: A layer's piece counts apart (`split_layers`) from this many of its points, or this share of them.
 MIN_PIECE_POINTS = 15
 MIN_PIECE_SHARE = 0.1
+
+
+def layers_told_apart(m: LayerMeasurement, cfg: LayersConfig) -> LayerMeasurement:
+    """`m`, or no count, with the reason and its evidence kept, where its layers' plate centres spread
+    across the chain's plane by more than `MAX_LAYER_SPREAD_PITCHES`: its layers are not told apart,
+    and neither is its count (bench seed 30643, a 2-link sweep brought into register from its frames
+    alone: 4 links at 9.0 mm in the plane, its layers spread 3.8 mm)."""
+    if m.n_links is None or m.t_rms_m is None or m.t_rms_m <= MAX_LAYER_SPREAD_PITCHES * cfg.layer_pitch_m:
+        return m
+    reason = (
+        f"its layers' plate centres spread {1000 * m.t_rms_m:.1f} mm (RMS) across the chain's plane, as "
+        "far as a link's step to the next layer: its layers are not told apart (a blurred capture)"
+    )
+    return replace(m, n_links=None, lengths_pu=None, angles_rad=None, reason=reason)
 
 
 def past_last_layer(labels: np.ndarray) -> bool:
