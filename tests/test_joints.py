@@ -47,7 +47,8 @@ def _measured(p, v, labels, with_thickness=True):
     keep = p[:, 2] > cfg.min_height_m
     thickness = _thickness(p[keep], v[keep]) if with_thickness else None
     labels = labels[keep]
-    return L._measure_reading(p[keep], labels, labels.astype(np.float64), PRINT_SCALE, cfg, thickness)
+    centres = labels.astype(np.float64)
+    return L._measure_reading(p[keep], labels, centres, PRINT_SCALE, cfg, thickness, centres * PITCH_M)
 
 
 def test_a_plate_read_as_two_links_is_one_where_the_cut_is_one_plate_thick():

@@ -79,8 +79,8 @@ def test_two_links_read_as_one_layer_without_thickness_are_split_where_their_pla
     keep = p[:, 2] > cfg.min_height_m
     p, links, plate_t_m = p[keep], links[keep], plate_t_m[keep]
     merged = np.where(links >= 2, links - 1, links)
-    read = L._measure_reading(p, merged, merged.astype(np.float64), PRINT_SCALE, cfg, None)
-    assert read.n_links == 2  # the layers alone
+    read = L._measure_reading(p, merged, merged.astype(np.float64), PRINT_SCALE, cfg, None, merged * PITCH_M)
+    assert read.n_links == 2  # the layers alone: their plate centres whole layers, no step to go by
     m = L._measure_reading(p, merged, merged.astype(np.float64), PRINT_SCALE, cfg, None, plate_t_m)
     assert m.n_links == 3, m.points_per_layer
     right = L._measure_reading(p, links, links.astype(np.float64), PRINT_SCALE, cfg, None, plate_t_m)

@@ -453,13 +453,14 @@ def _measure_reading(
     centre_layers: np.ndarray,
     print_scale: float,
     cfg: LayersConfig,
-    thickness: Thickness | None = None,
-    plate_t_m: np.ndarray | None = None,
+    thickness: Thickness | None,
+    plate_t_m: np.ndarray,
 ) -> LayerMeasurement:
     """The chain of points `p` (s, t, z) with one reading of their layers: counted, fitted and
     checked (a top layer that is no link, a plate cut in two by its lean, a link too short to
     print, and where `thickness` sees them, joints no thicker than a plate and a plate as thick as a
-    joint: `measure.joints`), or why it is no chain."""
+    joint: `measure.joints`; a layer whose plate centres `plate_t_m` step along it: `measure.steps`),
+    or why it is no chain."""
     n, per_layer = count_links(labels, cfg)
     if n is None:
         return LayerMeasurement(None, None, None, per_layer)
@@ -482,7 +483,7 @@ def _measure_reading(
         if n < MAX_MOVING_LINKS and len(split_before) < MAX_MOVING_LINKS:
             if thickness is not None:
                 split = hidden_joint(thickness, layers, starts)
-            if split is None and plate_t_m is not None:  # or where its plate centres step by a joint's
+            if split is None:  # or where its plate centres step by a joint's
                 layers_t = [plate_t_m[labels_n == k] for k in range(n + 1)]
                 split = stepped_layer(layers, layers_t, starts, ends, cfg.layer_pitch_m)
         if split is not None:
@@ -526,7 +527,7 @@ def _measure_reading(
         )
         return LayerMeasurement(None, None, None, per_layer, rms, reason)
     angles = (x[n + 2 :] + np.pi) % (2 * np.pi) - np.pi
-    t_rms = None if plate_t_m is None else layer_t_rms_m(p[:, [0, 2]], plate_t_m, labels_n, n)
+    t_rms = layer_t_rms_m(p[:, [0, 2]], plate_t_m, labels_n, n)
     return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms, t_rms_m=t_rms)
 
 
