@@ -65,10 +65,10 @@ def chain_faces(plates: list[Plate], spacing_m: float, rng=None, noise_m: float 
     return (p, v, np.concatenate(owners)) if with_plates else (p, v)
 
 
-def leaning_chain(lengths_m, angles_deg, leans_deg, pitch_m: float, seed: int = 0):
+def leaning_chain(lengths_m, angles_deg, leans_deg, pitch_m: float, seed: int = 0, noise_m: float = 0.0008):
     """(points (N, 3) s, t, z, view directions, each point's link, the joints (n, 2) in the plane): a
     chain whose links lean out of their layers about their pins, as joint play leans a print, seen
-    from both sides (grid 2.5 mm, noise 0.8 mm)."""
+    from both sides (grid 2.5 mm, Gaussian noise `noise_m`)."""
     plates = [Plate(np.array([0.0, 0.0]), np.array([0.0, lengths_m[0]]), 0.0)]
     joint, phi, joints = np.array([0.0, lengths_m[0]]), 0.0, []
     for k, (length, angle, lean) in enumerate(zip(lengths_m[1:], angles_deg, leans_deg), start=1):
@@ -79,4 +79,4 @@ def leaning_chain(lengths_m, angles_deg, leans_deg, pitch_m: float, seed: int = 
         plates.append(Plate(joint.copy(), end, t_at_pin, np.radians(lean)))
         joints.append(joint.copy())
         joint = joint + d * length
-    return *chain_faces(plates, 0.0025, np.random.default_rng(seed), 0.0008, with_plates=True), np.array(joints)
+    return *chain_faces(plates, 0.0025, np.random.default_rng(seed), noise_m, with_plates=True), np.array(joints)

@@ -1,11 +1,13 @@
 """Where a layer's plate centres step along it (`spare_twin.measure.steps`): two links the layers'
-rounding ran into one, found without seeing the chain from both sides."""
+rounding ran into one, found where the joints' thickness is not read."""
 
 import numpy as np
 import pytest
-from plate_chain import HALF_THICKNESS_M, HALF_WIDTH_M, Plate, chain_faces
+from plate_chain import HALF_THICKNESS_M, HALF_WIDTH_M, leaning_chain
+from scipy.spatial import cKDTree
 
 from spare_twin.measure import layers as L
+from spare_twin.measure.medians import grouped_medians
 from spare_twin.measure.steps import stepped_layer
 
 PITCH_M, PRINT_SCALE = 0.0064, 0.08
@@ -54,18 +56,10 @@ def test_no_step_is_read_where_there_is_no_joint(why, layer):
 def _straight_run(lengths_m=(0.07, 0.04, 0.035, 0.03), angles_deg=(20.0, 3.0, -4.0), seed=0):
     """A chain of short links in a nearly straight run and its points' plate centres, their medians
     within 5 mm in the plane: (points (N, 3) s, t, z, each point's link, plate centres (N,))."""
-    plates = [Plate(np.array([0.0, 0.0]), np.array([0.0, lengths_m[0]]), 0.0)]
-    joint, phi = np.array([0.0, lengths_m[0]]), 0.0
-    for k, (length, angle) in enumerate(zip(lengths_m[1:], angles_deg), start=1):
-        phi += np.radians(angle)
-        d = np.array([np.sin(phi), np.cos(phi)])
-        end = joint + d * (length - (HALF_WIDTH_M if k == len(angles_deg) else 0.0))
-        plates.append(Plate(joint.copy(), end, k * PITCH_M))
-        joint = joint + d * length
-    p, v, links = chain_faces(plates, 0.0025, np.random.default_rng(seed), 0.0005, with_plates=True)
+    no_lean = (0.0,) * len(angles_deg)
+    p, v, links, _ = leaning_chain(lengths_m, angles_deg, no_lean, PITCH_M, seed, noise_m=0.0005)
     centre_t = p[:, 1] - v[:, 1] * HALF_THICKNESS_M
-    near = [np.flatnonzero(np.linalg.norm(p[:, [0, 2]] - q, axis=1) < 0.005) for q in p[:, [0, 2]]]
-    return p, links, np.array([np.median(centre_t[i]) for i in near])
+    return p, links, grouped_medians(centre_t, cKDTree(p[:, [0, 2]]).query_ball_point(p[:, [0, 2]], 0.005))
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
