@@ -14,7 +14,9 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    is kept (`split_layers`), and between two such, the one whose chain lies closer to its points in
    the plane and across it (`LayerMeasurement.cost_m`: a layer holding two links holds the whole
    pitch's step between them, which no one plate's plane fits); with one count, the followed one where
-   its chain fits clearly better (`FOLLOWED_RMS_SHARE`).
+   its chain fits clearly better (`FOLLOWED_RMS_SHARE`). In each reading, a layer's
+   stray fragments, small pieces apart from its plate among the points of the layer next to it, go to
+   that layer first (`measure.fragments`).
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
    2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
 3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
@@ -54,12 +56,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
 from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments
+from spare_twin.measure.fragments import adopt_fragments, counted_pieces, pieces
 from spare_twin.measure.joints import (
     MIN_JOINT_EXCESS_LAYERS,
     Thickness,
@@ -345,6 +346,7 @@ def measure_layers(
     if len(p) < cfg.min_layer_points:
         return LayerMeasurement(None, None, None, ())
     readings = layer_readings(p[:, 0], p[:, 1], p[:, 2], None if view_dirs is None else v[:, 1], cfg)
+    readings = [adopt_fragments(p[:, [0, 2]], *reading, cfg.radius_m, cfg.min_layer_points) for reading in readings]
     thickness = None
     if view_dirs is not None and cfg.joint_thickness:
         thickness = Thickness(p[:, [0, 2]], p[:, 1], chain_sides(v[:, 1], cfg.min_side_cosine), cfg.layer_pitch_m)
@@ -399,9 +401,6 @@ MAX_LOOSENING = 2.0
 #: layers spread 0.1-1.5 mm where their count was right; the three answers past 1.6 mm were wrong (real
 #: 30628, 5 links read as 4 at 1.72 mm; clean renders 30537 and 30441, 1.63 and 1.62 mm).
 MAX_LAYER_SPREAD_PITCHES = 0.25
-#: A layer's piece counts apart (`split_layers`) from this many of its points, or this share of them.
-MIN_PIECE_POINTS = 15
-MIN_PIECE_SHARE = 0.1
 
 
 def layers_told_apart(m: LayerMeasurement, cfg: LayersConfig) -> LayerMeasurement:
@@ -429,7 +428,7 @@ def past_last_layer(labels: np.ndarray) -> bool:
 def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int:
     """How many more pieces than links the layers 1..n of a reading hold (n as the reading counts
     them, before any layer is found to be no link): pieces of a layer not joined in the plane
-    (within `radius_m`), each of at least `MIN_PIECE_POINTS` points and `MIN_PIECE_SHARE`. A link
+    (within `radius_m`), each of at least `fragments.MIN_PIECE_POINTS` points and `MIN_PIECE_SHARE`. A link
     is one plate, so each of its layers is one piece; a reading that puts two separate parts of the
     chain in one layer has read a plate across a layer boundary (the comb held still while joint
     play's leans climbed along a straight run of short links: bench seed 30068, 3 links read as 1)."""
@@ -437,13 +436,9 @@ def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int
     labels = np.clip(labels, 0, n)
     extra = 0
     for k in range(1, n + 1):
-        q = sz_m[labels == k]
-        if len(q) < 2:
-            continue
-        pairs = cKDTree(q).query_pairs(cfg.radius_m, output_type="ndarray")
-        graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(q), len(q)))
-        sizes = np.bincount(connected_components(graph, directed=False)[1])
-        extra += max(int((sizes >= max(MIN_PIECE_POINTS, MIN_PIECE_SHARE * len(q))).sum()) - 1, 0)
+        mine = labels == k
+        if mine.sum() >= 2:
+            extra += max(counted_pieces(np.bincount(pieces(sz_m[mine], cfg.radius_m)), int(mine.sum())) - 1, 0)
     return extra
 
 
