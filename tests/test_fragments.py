@@ -41,7 +41,9 @@ def test_column_points_read_a_layer_up_go_back_to_the_column():
     assert np.allclose(adopted_centres, labels + 0.2)  # moved by the same whole layer
 
 
-@pytest.mark.parametrize("why", ["a piece large enough to count", "among a layer two away", "alone", "a few points"])
+@pytest.mark.parametrize(
+    "why", ["a piece large enough to count", "among a layer two away", "alone", "a few points", "beside its own plate"]
+)
 def test_fragments_that_are_no_stray_stay_where_they_were_read(why):
     sz, labels = _column_and_arm()
     if why == "a piece large enough to count":  # 3 cm of the column: a link folded down beside it
@@ -53,6 +55,10 @@ def test_fragments_that_are_no_stray_stay_where_they_were_read(why):
     elif why == "a few points":  # noise, which the fit's robust loss holds: given to a plate, it stretches it
         stray = (sz[:, 0] < 0.006) & (sz[:, 1] > 0.049) & (sz[:, 1] < 0.051)
         assert 0 < stray.sum() < MIN_POINTS
+        read = np.where(stray, 1, labels)
+    elif why == "beside its own plate":  # within 12 mm of link 1's plate, where a joint's plates overlap
+        stray = (sz[:, 0] < 0.006) & (sz[:, 1] > 0.104) & (sz[:, 1] < 0.111)
+        assert MIN_POINTS <= stray.sum()
         read = np.where(stray, 1, labels)
     else:  # far from every other point: nothing to give it to
         sz = np.concatenate([sz, _grid(0.1, 0.11, 0.02, 0.03)])
