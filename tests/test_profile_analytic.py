@@ -63,18 +63,24 @@ def _layer_slope(image: np.ndarray, print_scale: float) -> float:
 
 
 @pytest.mark.parametrize("index", [96, 114])  # one-link chains of seed 0 with 7-8 cm links (0.90, 0.98 pu)
-def test_a_tilted_link_runs_across_layers_by_its_tilt(index):
+def test_a_tilted_link_runs_across_layers_by_its_tilt_and_is_levelled(index):
     """Joint play: a link tilted by delta out of the plane runs sin(delta) along the joint axes per
-    metre of its length; measured in the image as the slope of its cells' mean t, against the same chain
-    untilted (the same draws but the tilt's), whose link stays on its layer."""
+    metre of its length; measured in the image of the points as captured as the slope of its cells'
+    mean t, against the same chain untilted (the same draws but the tilt's), whose link stays on its
+    layer. The network's image, levelled by the layers' comb as `predict` levels a capture's
+    (`measure.level`), holds the link on its layer."""
     spec = sample_chain(1, seed=ANALYTIC_SEED_BASE + index)
-    flat = analytic_sample(AnalyticProfileConfig(samples=1, joint_tilt_deg=(0.0, 0.0), **CLEAN), index)
-    tilted = analytic_sample(AnalyticProfileConfig(samples=1, joint_tilt_deg=(4.0, 4.0), **CLEAN), index)
+    flat_c = AnalyticProfileConfig(samples=1, joint_tilt_deg=(0.0, 0.0), **CLEAN)
+    tilted_c = AnalyticProfileConfig(samples=1, joint_tilt_deg=(4.0, 4.0), **CLEAN)
+    flat = analytic_sample(flat_c, index, levelled=False)
+    tilted = analytic_sample(tilted_c, index, levelled=False)
     expected = np.sin(np.radians(4.0)) / (spec.layer_pitch_mm / 1000.0)  # layers per metre
     flat_slope = _layer_slope(flat["x"].astype(np.float32), spec.print_scale)
     tilted_slope = _layer_slope(tilted["x"].astype(np.float32), spec.print_scale)
     assert abs(flat_slope) < 0.25 * expected, (flat_slope, expected)
     assert 0.8 * expected < abs(tilted_slope - flat_slope) < 1.2 * expected, (tilted_slope, flat_slope, expected)
+    levelled_slope = _layer_slope(analytic_sample(tilted_c, index)["x"].astype(np.float32), spec.print_scale)
+    assert abs(levelled_slope) < 0.25 * expected, (levelled_slope, expected)
 
 
 def test_a_farther_plate_behind_a_nearer_one_is_hidden():

@@ -50,8 +50,10 @@ from spare_twin.dataset.backends import start_pool
 from spare_twin.errors import SpareTwinError
 from spare_twin.io import write_bytes_atomic, write_json_atomic
 from spare_twin.measure.chain import measure_views
+from spare_twin.measure.level import levelled_image
 from spare_twin.nets.sample_folders import HANDHELD_FORMAT, HANDHELD_KIND, SPLIT_CODES
 from spare_twin.observe.network_input import DEFAULT_PRINT_SCALE
+from spare_twin.observe.profile import ProfileConfig
 from spare_twin.observe.views import recording_views
 from spare_twin.output import writing
 from spare_twin.predict.abstain import MIN_ARC_DEG
@@ -85,13 +87,15 @@ def _labels(d: Path, measured_angles) -> dict[str, np.ndarray]:
 
 def draw_sample(d: Path, c: CaptureSettings, cfg: BenchConfig) -> dict[str, np.ndarray]:
     """One object's capture drawn into `d`, observed as `predict` observes it, and deleted: its sample
-    (`x` the profile image, float16; labels), or only `rejected` where no chain was found."""
+    (`x` the profile image levelled by its layers' comb as `predict` levels it, float16; labels), or
+    only `rejected` where no chain was found."""
     obj = capture.build(d, c)
     capture.draw_real(obj, d, c, cfg.effects)
     obs, m = measure_views(recording_views(Recording.open(d / "real")), DEFAULT_PRINT_SCALE, min_arc_deg=MIN_ARC_DEG)
     if obs.reason is not None:
         return {"rejected": np.array(True)}
-    sample = {"x": obs.profile.image.astype(np.float16), "rejected": np.array(False)}
+    image = levelled_image(obs.object, obs.profile, m.comb_zero, DEFAULT_PRINT_SCALE, ProfileConfig())
+    sample = {"x": image.astype(np.float16), "rejected": np.array(False)}
     sample.update(_labels(d, None if m.angles_rad is None else np.asarray(m.angles_rad)))
     return sample
 

@@ -53,7 +53,7 @@ Deterministic: medians, sorted KD-tree queries and scipy's least squares with fi
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -68,6 +68,7 @@ from spare_twin.measure.joints import (
     hidden_joint,
     joint_excess_layers,
 )
+from spare_twin.measure.level import CombZero
 from spare_twin.measure.medians import grouped_medians
 from spare_twin.measure.plates import local_comb_layers
 from spare_twin.measure.steps import stepped_layer
@@ -190,6 +191,9 @@ class LayerMeasurement:
     t_rms_m: float | None = None
     """RMS spread of the points' plate centres across the plane about each layer's own slanted
     plane (`layer_t_rms_m`): how well the layers hold one plate each."""
+    comb_zero: CombZero | None = field(default=None, repr=False, compare=False)
+    """The followed comb's zero across the plane, which levels the profile network's input
+    (`measure.level`); None where no comb was followed."""
 
     @property
     def cost_m(self) -> float | None:
@@ -200,16 +204,12 @@ class LayerMeasurement:
         return float(np.hypot(self.rms_m, self.t_rms_m or 0.0))
 
 
-def layer_readings(
+def plate_centres_t(
     s_m: np.ndarray, t_m: np.ndarray, z_m: np.ndarray, view_t: np.ndarray | None, cfg: LayersConfig
-) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The readings of the points' layers, each (labels, centre_layers): each point's (N,) int64 layer
-    and its plate centre in layers. The plate centre is the median of its in-plane neighbourhood on
-    the same side of the chain. First the layers read off one comb of the layer pitch (shear taken
-    out), rounded; then, with `cfg.follow_comb` and a base column, off the comb followed along the
-    chain from that column (`measure.plates`: joint play leans the links off one comb). A point seen
-    from +t lies on a plate's +t face, half a thickness past its centre (and the other way round), so
-    each reading says its plate's centre; where two plates overlap at a joint, those seen from either
+) -> np.ndarray:
+    """(N,) each point's plate centre across the plane: the median of its in-plane neighbourhood on
+    the same side of the chain. A point seen from +t lies on a plate's +t face, half a thickness past
+    its centre (and the other way round); where two plates overlap at a joint, those seen from either
     side are each one plate's face."""
     side = np.zeros(len(t_m), np.int64)
     if view_t is not None:
@@ -224,6 +224,24 @@ def layer_readings(
             pool = mine if value != 0 else np.arange(len(t_m))  # an edge-on point asks all its neighbours
             neighbours = cKDTree(sz[pool]).query_ball_point(sz[mine], cfg.radius_m, return_sorted=True)
             median_t[mine] = grouped_medians(centre_t[pool], neighbours)  # each point is its own neighbour
+    return median_t
+
+
+def layer_readings(
+    s_m: np.ndarray,
+    t_m: np.ndarray,
+    z_m: np.ndarray,
+    view_t: np.ndarray | None,
+    cfg: LayersConfig,
+    plate_t_m: np.ndarray | None = None,
+) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The readings of the points' layers, each (labels, centre_layers): each point's (N,) int64 layer
+    and its plate centre in layers, from the points' plate centres (`plate_t_m`, or
+    `plate_centres_t`). First the layers read off one comb of the layer pitch (shear taken out),
+    rounded; then, with `cfg.follow_comb` and a base column, off the comb followed along the chain
+    from that column (`measure.plates`: joint play leans the links off one comb)."""
+    median_t = plate_centres_t(s_m, t_m, z_m, view_t, cfg) if plate_t_m is None else plate_t_m
+    sz = np.stack([s_m, z_m], 1)
     column = (z_m > cfg.min_height_m) & (z_m < cfg.min_height_m + 0.02) & (np.abs(s_m) < cfg.half_width_m * 2)
     readings = [_one_comb(s_m, median_t, column, cfg)]
     if cfg.follow_comb:
@@ -231,6 +249,20 @@ def layer_readings(
         if followed is not None:
             readings.append(followed)
     return readings
+
+
+def read_layers(
+    p: np.ndarray, view_t: np.ndarray | None, cfg: LayersConfig, flip: np.ndarray | None = None
+) -> tuple[list[tuple[np.ndarray, np.ndarray]], CombZero | None]:
+    """`layer_readings` of the points `p` (s, t, z: the links at larger t than the base, the profile
+    frame times `flip`) and the followed comb's zero as read, before any fragment moves: the profile
+    network's input is levelled by it (`measure.level`; None where no comb was followed)."""
+    centre_t_m = plate_centres_t(p[:, 0], p[:, 1], p[:, 2], view_t, cfg)
+    readings = layer_readings(p[:, 0], p[:, 1], p[:, 2], view_t, cfg, centre_t_m)
+    if len(readings) < 2:
+        return readings, None
+    flip = np.ones(3) if flip is None else flip
+    return readings, CombZero.of_reading(p, flip, centre_t_m, readings[1][1], cfg.layer_pitch_m)
 
 
 def _one_comb(
@@ -345,13 +377,21 @@ def measure_layers(
         p, v = p[pick], v[pick]
     if len(p) < cfg.min_layer_points:
         return LayerMeasurement(None, None, None, ())
-    readings = layer_readings(p[:, 0], p[:, 1], p[:, 2], None if view_dirs is None else v[:, 1], cfg)
+    readings, zero = read_layers(p, None if view_dirs is None else v[:, 1], cfg, flip)
     readings = [adopt_fragments(p[:, [0, 2]], *reading, cfg.radius_m, cfg.min_layer_points) for reading in readings]
     thickness = None
     if view_dirs is not None and cfg.joint_thickness:
         thickness = Thickness(p[:, [0, 2]], p[:, 1], chain_sides(v[:, 1], cfg.min_side_cosine), cfg.layer_pitch_m)
         if not thickness.holds(2 * cfg.half_thickness_m):
             thickness = None
+    return replace(_chosen_reading(p, readings, print_scale, cfg, thickness), comb_zero=zero)
+
+
+def _chosen_reading(
+    p: np.ndarray, readings: list, print_scale: float, cfg: LayersConfig, thickness: Thickness | None
+) -> LayerMeasurement:
+    """The chain of the reading that read the plates right, where the two readings (`layer_readings`)
+    differ."""
     # one plate-centre t for every reading (the comb's, its shear out): their layers' spreads compare
     plate_t_m = readings[0][1] * cfg.layer_pitch_m
     as_designed = _measure_reading(p, *readings[0], print_scale, cfg, thickness, plate_t_m)

@@ -18,7 +18,8 @@ across layers. Sample i of seed S:
    the plane (a few in 100 points three times as far off), noise in it, views slightly out of
    register (a small offset and turn each), holes, stray points strung out across the plane (flying
    pixels the cleaning missed), and the profile frame found a little off (base axis, plane direction);
-4. the image: `observe.profile.draw_profile`, as `predict` draws a capture's points.
+4. the image: `observe.profile.draw_profile` of the points levelled by their layers' comb
+   (`measure.level`), as `predict` draws a capture's points for the network.
 
 Labels as `dataset --handheld`'s: the count, the nominal 7-slot lengths (paper units) and the held
 joint angles. The appearance ranges of step 3 were set so that the samples' statistics match those of
@@ -38,6 +39,7 @@ from tqdm import tqdm
 from spare_twin.config import sample_chain
 from spare_twin.dataset.backends import start_pool
 from spare_twin.io import write_bytes_atomic, write_json_atomic
+from spare_twin.measure.layers import LayersConfig, read_layers
 from spare_twin.nets.profile_analytic_config import (
     ANALYTIC_SEED_BASE,
     CHUNK,
@@ -173,8 +175,19 @@ def _as_captured(rng, p: np.ndarray, c: AnalyticProfileConfig) -> np.ndarray:
     return p
 
 
-def analytic_sample(c: AnalyticProfileConfig, index: int, profile: ProfileConfig = ProfileConfig()) -> dict:
-    """Sample `index` of `c` (module doc): {"x": float16 (3, H, W), "n", "lengths" (7,), "angles" (6,)}."""
+def _levelled_t_m(points: np.ndarray, spec) -> np.ndarray:
+    """The points' t less their layers' comb's zero, as `predict` levels a capture's profile
+    (`measure.level`); with no cameras' directions, each plate centre is read over both faces."""
+    cfg = LayersConfig.for_parts(spec.parts)
+    _, zero = read_layers(points[points[:, 2] > cfg.min_height_m], None, cfg)
+    return points[:, 1] if zero is None else zero.levelled_t_m(points[:, 0], points[:, 1], points[:, 2])
+
+
+def analytic_sample(
+    c: AnalyticProfileConfig, index: int, profile: ProfileConfig = ProfileConfig(), levelled: bool = True
+) -> dict:
+    """Sample `index` of `c` (module doc): {"x": float16 (3, H, W), "n", "lengths" (7,), "angles" (6,)};
+    `levelled` False: the image of the points as captured, before their layers' comb levels them."""
     chain_seed = ANALYTIC_SEED_BASE + c.seed * SEED_STRIDE + index
     rng = np.random.default_rng(chain_seed)
     n = index % 6 + 1
@@ -190,7 +203,8 @@ def analytic_sample(c: AnalyticProfileConfig, index: int, profile: ProfileConfig
     points = points[points[:, 2] > 0.004]  # the table cut
     pitch_m = spec.layer_pitch_mm / 1000.0
     s_pu, z_pu = points[:, 0] / spec.print_scale, points[:, 2] / spec.print_scale
-    image = draw_profile(s_pu, z_pu, points[:, 1] / pitch_m, profile)
+    t_m = _levelled_t_m(points, spec) if levelled else points[:, 1]
+    image = draw_profile(s_pu, z_pu, t_m / pitch_m, profile)
     padded = np.zeros(6, np.float32)
     padded[:n] = angles
     return {"x": image.astype(np.float16), "n": n, "lengths": spec.label_lengths(), "angles": padded}

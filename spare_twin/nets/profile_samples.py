@@ -13,7 +13,9 @@ step and turns it into what a hand-held capture of a printed object gives `predi
   must be found again, by the same code as for a real capture);
 - clutter, where the dataset rendered it (`spare-twin dataset --sim2real`): the segmentation removes it.
 
-Then exactly the `predict` path: `observe.chain.find_chain` (the points and the profile of the chain on the table).
+Then exactly the `predict` path: `observe.chain.find_chain` (the points and the profile of the chain on
+the table), the layer measurement (`measure.layers`) and the profile levelled by its layers' comb
+(`measure.level`), which is what the network reads.
 Labels: the count, the 7-slot lengths (paper units) and the joint angles with the sign of the profile
 frame the observation chose (its x against the base link's x), so an observation that read the
 layer order wrongly teaches the network nothing false.
@@ -32,9 +34,10 @@ import numpy as np
 from spare_twin.config import MAX_MOVING_LINKS
 from spare_twin.dataset.store import lengths_label_pu
 from spare_twin.measure.layers import LayerMeasurement, measure_profile
+from spare_twin.measure.level import levelled_image
 from spare_twin.observe.chain import find_chain
 from spare_twin.observe.points import PosedView
-from spare_twin.observe.profile import ChainProfile
+from spare_twin.observe.profile import ChainProfile, ProfileConfig
 from spare_twin.sim.noise import load_noise
 
 
@@ -102,16 +105,18 @@ def augmented_views(
 
 @dataclass(frozen=True)
 class Sample:
-    """One network sample: the profile image and its labels (or the observation's reason for none)."""
+    """One network sample: the network's input and its labels (or the observation's reason for none)."""
 
     profile: ChainProfile
+    image: np.ndarray
+    """float32 (C, H, W): the profile levelled by its layers' comb (`measure.level`), as `predict` draws it."""
     n_links: int
     lengths_pu: np.ndarray
     """float32 (7,): the paper's 7-slot label."""
     angles_rad: np.ndarray
     """float32 (6,): joint angles in the profile frame's sign, 0 past the last joint."""
-    measurement: LayerMeasurement | None = None
-    """The chain measured on the points (`spare_twin.measure.layers`), when asked for."""
+    measurement: LayerMeasurement
+    """The chain measured on the points (`spare_twin.measure.layers`)."""
 
 
 def rig_sample(
@@ -125,10 +130,8 @@ def rig_sample(
     print_scale: float,
     aug: CaptureAugment | None,
     rng: np.random.Generator | None,
-    measure: bool = False,
 ) -> Sample:
-    """The sample of one rig time step; `aug` None: the rig's views as they are (the in-rig test);
-    `measure`: with `predict`'s measurement of the chain on the points."""
+    """The sample of one rig time step; `aug` None: the rig's views as they are (the in-rig test)."""
     if aug is None:
         views, G = [PosedView(d, k, T) for d, k, T in zip(depth_m, K, T_world_camera)], np.eye(4)
     else:
@@ -139,13 +142,13 @@ def rig_sample(
     sign = 1.0 if x_profile @ x_base >= 0 else -1.0
     angles = np.zeros(MAX_MOVING_LINKS, np.float32)
     angles[:n_links] = sign * np.asarray(joints_rad[:n_links], np.float64)
-    measurement = measure_profile(obj, profile, print_scale) if measure else None
-    return Sample(profile, int(n_links), np.asarray(lengths_label, np.float32).reshape(7), angles, measurement)
+    measurement = measure_profile(obj, profile, print_scale)
+    image = levelled_image(obj, profile, measurement.comb_zero, print_scale, ProfileConfig())
+    lengths = np.asarray(lengths_label, np.float32).reshape(7)
+    return Sample(profile, image, int(n_links), lengths, angles, measurement)
 
 
-def stored_sample(
-    f: h5py.File, t: int, aug: CaptureAugment | None, rng: np.random.Generator | None, measure: bool = False
-) -> Sample:
+def stored_sample(f: h5py.File, t: int, aug: CaptureAugment | None, rng: np.random.Generator | None) -> Sample:
     """`rig_sample` of time step `t` of an open dataset sequence (`spare_twin.dataset.store`)."""
     return rig_sample(
         f["depth"][:, t].astype(np.float32) * np.float32(f.attrs["depth_scale"]),
@@ -158,5 +161,4 @@ def stored_sample(
         float(f.attrs["print_scale"]),
         aug,
         rng,
-        measure,
     )

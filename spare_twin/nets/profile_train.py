@@ -1,6 +1,7 @@
 """The yaw-free profile network's samples (`nets.registry` names this its sample source).
 
-A sample costs a full observation (~0.1 s, and as much again for the layer measurement), far more
+A sample costs a full observation (~0.1 s) and as much again for the layer measurement, whose
+layers' comb levels the network's input (`measure.level`), far more
 than a training step, so a split is observed once, in several processes, and kept:
 
 - training (`spare-twin train`, the one loop of `nets.train`): into the run folder
@@ -61,12 +62,12 @@ def _sequence_samples(job: tuple) -> dict:
         for t in times:
             for v in range(variants):
                 rng = np.random.default_rng([seed, dataset_seed, index, t, v])
-                s = stored_sample(f, t, aug, rng, measure=measure)
+                s = stored_sample(f, t, aug, rng)
                 if s.profile.reason is not None:
                     out["rejected"] += 1
                     if not keep_rejected:
                         continue
-                out["x"].append(s.profile.image.astype(np.float16))
+                out["x"].append(s.image.astype(np.float16))
                 out["n"].append(s.n_links)
                 out["lengths"].append(s.lengths_pu)
                 out["angles"].append(s.angles_rad)

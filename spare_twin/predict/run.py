@@ -19,11 +19,13 @@ from spare_twin.config import DEFAULT_PRINT_SCALE, PartDims
 from spare_twin.errors import SpareTwinError
 from spare_twin.measure.chain import measure_views
 from spare_twin.measure.layers import LayerMeasurement
+from spare_twin.measure.level import levelled_image
 from spare_twin.measure.process import MeasureProcess
 from spare_twin.measure.serve import measure_recording
 from spare_twin.nets import checkpoint as ckpt
 from spare_twin.nets.registry import decode
 from spare_twin.observe.chain import ChainObservation
+from spare_twin.observe.profile import ProfileConfig
 from spare_twin.observe.views import PosedViews
 from spare_twin.predict.abstain import MIN_ARC_DEG, hold_network, measurement_estimate, network_estimate, note_parts
 from spare_twin.predict.combine import combined
@@ -146,13 +148,16 @@ def answer_of(
     on others, `predict.abstain.note_parts`)."""
     import torch
 
+    # the network reads the profile levelled by the layers' comb (`measure.level`), not the points alone
+    image = levelled_image(obs.object, obs.profile, m.comb_zero, print_scale, ProfileConfig.for_parts(parts))
+    levelled = "levelled by its layers' comb, " if m.comb_zero is not None and obs.reason is None else ""
     common = dict(
         answer_kind=answer,
-        input=f"profile ({obs.source}, {obs.views} views)",
+        input=f"profile ({levelled}{obs.source}, {obs.views} views)",
         model=model_name,
         recording=str(recording),
         print_scale=print_scale,
-        network_input=obs.profile.image,
+        network_input=image,
         T_world_profile=obs.T_world_profile,
         parts=parts,
     )
@@ -165,7 +170,7 @@ def answer_of(
     t0 = time.perf_counter()
     if answer != "measurement":
         with torch.no_grad():
-            res = decode(model, net, {"x": torch.from_numpy(obs.profile.image[None]).to(device)})
+            res = decode(model, net, {"x": torch.from_numpy(image[None]).to(device)})
         network = note_parts(hold_network(network_estimate(res, 0, net), obs, m), parts)
     timings = {**obs.timings_s, "network": round(time.perf_counter() - t0, 4)}
     if answer == "network":
