@@ -94,7 +94,7 @@ def register(sub) -> None:
         "--analytic-profiles",
         action="store_true",
         help="instead of rig sequences: K profile samples drawn straight from the printed chain's geometry (joint "
-        "play, print error, one or both faces seen, noise, blur, holes, stray points; about 7 ms each) in the format "
+        "play, print error, one or both faces seen, noise, blur, holes, stray points; about 90 ms each) in the format "
         "of --handheld's folders, for the profile network's training; chain seeds 3e9 + S * 1e6 + i. Takes --out, "
         "--instances, --seed, --workers, --force only",
     )

@@ -2,9 +2,10 @@
 plates, with a real print's and a hand-held sensor's effects, for training the profile network.
 
 A hand-held capture costs about 20 s of a core to draw and observe (`dataset --handheld`); one of
-these costs about 7 ms, so tens of thousands of them train the network on what a real capture shows:
-each link leaning out of the chain's plane by its joint play, so that a long link's plate runs
-across layers. Sample i of seed S:
+these costs about 90 ms (4 ms to draw, the rest the layers' readings that level its image as
+`predict` levels a capture's), so tens of thousands of them train the network on what a real
+capture shows: each link leaning out of the chain's plane by its joint play, so that a long link's
+plate runs across layers. Sample i of seed S:
 
 1. the chain: n = i % 6 + 1 moving links, `config.sample_chain` with chain seed
    `ANALYTIC_SEED_BASE + S * SEED_STRIDE + i` (never a bench or hand-held seed), held in one pose of the
@@ -179,7 +180,10 @@ def _levelled_t_m(points: np.ndarray, spec) -> np.ndarray:
     """The points' t less their layers' comb's zero, as `predict` levels a capture's profile
     (`measure.level`); with no cameras' directions, each plate centre is read over both faces."""
     cfg = LayersConfig.for_parts(spec.parts)
-    _, zero = read_layers(points[points[:, 2] > cfg.min_height_m], None, cfg)
+    links = points[points[:, 2] > cfg.min_height_m]
+    if len(links) > cfg.max_points:  # as many as the measurement reads (`measure_layers`)
+        links = links[np.linspace(0, len(links) - 1, cfg.max_points).astype(np.int64)]
+    _, zero = read_layers(links, None, cfg)
     return points[:, 1] if zero is None else zero.levelled_t_m(points[:, 0], points[:, 1], points[:, 2])
 
 
