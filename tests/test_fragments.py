@@ -85,9 +85,9 @@ def test_stray_column_points_no_longer_draw_the_first_link_down_the_base(monkeyp
     assert read_right.n_links == 2
     readings = L.layer_readings
 
-    def misread(s, t, z, view_t, cfg, plate_t_m=None):
+    def misread(s, t, z, view_t, cfg, centre_t_m=None):
         stray = (np.abs(s) < 0.006) & (np.abs(t) < 0.004) & (((z > 0.06) & (z < 0.066)) | ((z > 0.085) & (z < 0.09)))
-        read = readings(s, t, z, view_t, cfg, plate_t_m)
+        read = readings(s, t, z, view_t, cfg, centre_t_m)
         return [(np.where(stray, 1, labels), np.where(stray, 1.0, c)) for labels, c in read]
 
     monkeypatch.setattr(L, "layer_readings", misread)

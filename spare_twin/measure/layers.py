@@ -16,7 +16,8 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    pitch's step between them, which no one plate's plane fits); with one count, the followed one where
    its chain fits clearly better (`FOLLOWED_RMS_SHARE`). In each reading, a layer's
    stray fragments, small pieces apart from its plate among the points of the layer next to it, go to
-   that layer first (`measure.fragments`).
+   that layer first (`measure.fragments`). The followed comb's zero is kept on the measurement: it
+   levels the profile network's input (`measure.level`).
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
    2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
 3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
@@ -233,14 +234,14 @@ def layer_readings(
     z_m: np.ndarray,
     view_t: np.ndarray | None,
     cfg: LayersConfig,
-    plate_t_m: np.ndarray | None = None,
+    centre_t_m: np.ndarray | None = None,
 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """The readings of the points' layers, each (labels, centre_layers): each point's (N,) int64 layer
-    and its plate centre in layers, from the points' plate centres (`plate_t_m`, or
+    and its plate centre in layers, from the points' plate centres (`centre_t_m`, or
     `plate_centres_t`). First the layers read off one comb of the layer pitch (shear taken out),
     rounded; then, with `cfg.follow_comb` and a base column, off the comb followed along the chain
     from that column (`measure.plates`: joint play leans the links off one comb)."""
-    median_t = plate_centres_t(s_m, t_m, z_m, view_t, cfg) if plate_t_m is None else plate_t_m
+    median_t = plate_centres_t(s_m, t_m, z_m, view_t, cfg) if centre_t_m is None else centre_t_m
     sz = np.stack([s_m, z_m], 1)
     column = (z_m > cfg.min_height_m) & (z_m < cfg.min_height_m + 0.02) & (np.abs(s_m) < cfg.half_width_m * 2)
     readings = [_one_comb(s_m, median_t, column, cfg)]
