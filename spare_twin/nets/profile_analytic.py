@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from spare_twin.config import sample_chain
+from spare_twin.config import ChainSpec, sample_chain
 from spare_twin.dataset.backends import start_pool
 from spare_twin.io import write_bytes_atomic, write_json_atomic
 from spare_twin.measure.layers import LayersConfig, read_layers
@@ -176,7 +176,7 @@ def _as_captured(rng, p: np.ndarray, c: AnalyticProfileConfig) -> np.ndarray:
     return p
 
 
-def _levelled_t_m(points: np.ndarray, spec) -> np.ndarray:
+def _levelled_t_m(points: np.ndarray, spec: ChainSpec) -> np.ndarray:
     """The points' t less their layers' comb's zero, as `predict` levels a capture's profile
     (`measure.level`); with no cameras' directions, each plate centre is read over both faces."""
     cfg = LayersConfig.for_parts(spec.parts)
