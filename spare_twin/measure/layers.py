@@ -655,7 +655,6 @@ def measure_profile(
     points_m, view_dirs = obj.points_m, obj.view_dirs
     if obj.fine_points_m is not None and len(obj.fine_points_m):
         points_m, view_dirs = obj.fine_points_m, obj.fine_view_dirs
-    T_profile_table = np.linalg.inv(profile.T_table_profile)
-    points = points_m @ T_profile_table[:3, :3].T + T_profile_table[:3, 3]
+    points = profile.in_profile_frame(points_m)
     view_dirs = None if view_dirs is None else view_dirs @ profile.T_table_profile[:3, :3]
     return measure_layers(points, print_scale, profile.sign_known, cfg, view_dirs)

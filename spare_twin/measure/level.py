@@ -67,7 +67,6 @@ def levelled_image(
     profile's own image where there is no zero or no chain)."""
     if zero is None or profile.reason is not None or not len(obj.points_m):
         return profile.image
-    T_profile_table = np.linalg.inv(profile.T_table_profile)
-    p = obj.points_m @ T_profile_table[:3, :3].T + T_profile_table[:3, 3]
+    p = profile.in_profile_frame(obj.points_m)
     t_m = zero.levelled_t_m(p[:, 0], p[:, 1], p[:, 2])
     return draw_profile(p[:, 0] / print_scale, p[:, 2] / print_scale, t_m / cfg.layer_pitch_m, cfg)

@@ -129,6 +129,11 @@ class ChainProfile:
     reason: str | None = None
     """Why these points are not a chain (then `image` is zero)."""
 
+    def in_profile_frame(self, points_table_m: np.ndarray) -> np.ndarray:
+        """(N, 3) table-frame points in the profile frame (s, t, z)."""
+        T_profile_table = np.linalg.inv(self.T_table_profile)
+        return points_table_m @ T_profile_table[:3, :3].T + T_profile_table[:3, 3]
+
 
 def _layer_concentration(d: np.ndarray, angles_rad: np.ndarray, pitch_m: float) -> np.ndarray:
     """Per direction angle: how well the points' offsets across it (t) fall on one phase of the layer
