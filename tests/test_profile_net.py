@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -148,3 +149,22 @@ def test_evaluate_gives_the_network_alone_and_combined(run, small_data, tmp_path
     assert (test["measured_n"] > 0).mean() >= 0.9 and combined["count_accuracy"] >= 0.9
     code, again, err = run_cli(argv, capsys)
     assert code == 0 and json.loads(again) == res and "observe test" not in err
+
+
+def test_the_shipped_network_reads_an_image_and_its_mirror_alike():
+    """`decode` averages the profile network over the image and its mirror image (the chain with its
+    joint angles negated): the two readings give one count and the same lengths, the angles negated,
+    though the network's own outputs on the two differ."""
+    model, net, _ = ckpt.load_model(Path(__file__).resolve().parents[1] / "models" / "profile-multitask.pt")
+    rng = np.random.default_rng(0)
+    x = torch.from_numpy(rng.random((4, net.frames, net.height, net.width), dtype=np.float32))
+    x[:, 0] = (x[:, 0] > 0.7).float()  # occupancy; channel 1 a mean t in layers, 0..1 here
+    x[:, 1] *= 4 * x[:, 0]
+    x[:, 2] *= 0.3 * x[:, 0]
+    seen, mirrored = decode(model, net, {"x": x}), decode(model, net, {"x": x.flip(-1)})
+    assert torch.allclose(seen["probabilities"], mirrored["probabilities"], atol=1e-6)
+    assert torch.allclose(seen["lengths_e2e"], mirrored["lengths_e2e"], atol=1e-6)
+    assert torch.allclose(seen["angles"], -mirrored["angles"], atol=1e-5)
+    with torch.no_grad():
+        plain, plain_mirrored = model(x=x), model(x=x.flip(-1))
+    assert not torch.allclose(plain["count_logits"], plain_mirrored["count_logits"], atol=1e-3)

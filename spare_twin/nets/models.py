@@ -303,6 +303,24 @@ def decode_heads(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.T
 
 
 @torch.no_grad()
+def decode_mirrored(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.Tensor | None = None) -> dict:
+    """`decode_heads` of the profile network, its outputs averaged over the image and its mirror image.
+
+    The mirror is a symmetry of the task (the chain whose joint angles are the negatives, the same count
+    and lengths: `profile_train.mirrored`) and the network was trained on both, so each reading is as
+    good as the other; averaging them removes what either owes to one side's look. Count probabilities
+    and lengths are averaged; angles through their sin / cos pairs, the mirror's sines negated."""
+    out = model(**inputs)
+    seen = model(**{**inputs, "x": inputs["x"].flip(-1)})
+    probabilities = (torch.softmax(out["count_logits"], 1) + torch.softmax(seen["count_logits"], 1)) / 2
+    both = {"count_logits": probabilities.log(), "lengths": (out["lengths"] + seen["lengths"]) / 2}
+    if "angles_sincos" in out:
+        sincos = (out["angles_sincos"] + seen["angles_sincos"] * seen["angles_sincos"].new_tensor([-1.0, 1.0])) / 2
+        both["angles"] = torch.atan2(sincos[..., 0], sincos[..., 1])
+    return _decode(cfg, both, true_n, lambda: both["lengths"])
+
+
+@torch.no_grad()
 def decode_routed(model: nn.Module, cfg: NetConfig, inputs: dict, true_n: torch.Tensor | None = None) -> dict:
     """`decode_heads` of a network whose lengths are routed by a count (the naive combination): its
     own predicted count end to end, the true count for ``lengths_known``."""

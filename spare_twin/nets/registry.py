@@ -28,6 +28,7 @@ from spare_twin.nets.models import (
     ProfileNet,
     decode_heads,
     decode_known_count,
+    decode_mirrored,
     decode_routed,
 )
 from spare_twin.nets.presets import NetConfig
@@ -99,7 +100,7 @@ ARCHITECTURES: dict[str, Architecture] = {
             "profile",
             ProfileNet,
             "profile",
-            decode_heads,
+            decode_mirrored,
             regresses_padded_slots=True,
             observed_samples=True,
             several_datasets=True,
