@@ -207,6 +207,10 @@ def test_a_network_sure_of_one_link_more_does_not_change_the_measured_count():
     out = overrule(res, {k: torch.as_tensor(v)[None] for k, v in measurement_slots(seen).items()})
     assert out["pred_n"].tolist() == [4]
     assert np.allclose(out["lengths_e2e"][0].numpy(), [1.0, 0.4, 0.5, 0.6, 0.3, 0.0, 0.0])
+    # sure of it (p >= NETWORK_OVERRULES_P), the network's count and lengths stand
+    probabilities[:, 4] = 0.97
+    out = overrule(res, {k: torch.as_tensor(v)[None] for k, v in measurement_slots(seen).items()})
+    assert out["pred_n"].tolist() == [5] and np.allclose(out["lengths_e2e"][0].numpy(), 0.5)
 
 
 @pytest.mark.parametrize("lengths, angles", CHAINS)

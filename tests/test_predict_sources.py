@@ -49,6 +49,11 @@ def sure_of_five(tmp_path_factory):
     return _count_head(tmp_path_factory.mktemp("five"), "five.pt", [0, 0, 0, 0, 20.0, 0])
 
 
+@pytest.fixture(scope="module")
+def leaning_to_five(tmp_path_factory):
+    return _count_head(tmp_path_factory.mktemp("leaning"), "leaning.pt", [0, 0, 0, 0, float(np.log(45.0)), 0])
+
+
 def _predict(rec, capsys, *extra):
     code, out, err = run_cli(["predict", str(rec), "--json", *extra], capsys)
     assert code == 0, err
@@ -77,20 +82,29 @@ def test_version_2_keys_sources_and_evidence(rig_rec, capsys):
     assert other["link_lengths_mm"] == pytest.approx([100 * v for v in other["link_lengths_pu"]], abs=1e-3)
 
 
-def test_answer_network_is_its_argmax_and_combined_is_the_measurement(rig_rec, sure_of_five, capsys):
-    """A network sure of 5 links on a 2-link object: `--answer network` says 5 (its argmax),
-    `combined` the measurement's 2, `--answer measurement` 2 with no network run."""
-    net_only = _predict(rig_rec.root, capsys, "--model", str(sure_of_five), "--answer", "network")
+def test_answer_network_is_its_argmax_and_combined_is_the_measurement(rig_rec, leaning_to_five, capsys):
+    """A network that leans to 5 links (p = 0.9) on a 2-link object: `--answer network` says 5 (its
+    argmax), `combined` the measurement's 2, `--answer measurement` 2 with no network run."""
+    net_only = _predict(rig_rec.root, capsys, "--model", str(leaning_to_five), "--answer", "network")
     p = net_only["network"]["probabilities"]
     assert net_only["n_links"] == int(np.argmax(p)) + 1 == 5 and net_only["source"] == "network"
-    assert len(net_only["link_lengths_pu"]) == 6
+    assert max(p) == pytest.approx(0.9, abs=1e-3) and len(net_only["link_lengths_pu"]) == 6
     assert net_only["measurement"]["n_links"] == 2  # it ran (its points hold the network to a chain) and says so
-    combined = _predict(rig_rec.root, capsys, "--model", str(sure_of_five))
+    combined = _predict(rig_rec.root, capsys, "--model", str(leaning_to_five))
     assert combined["n_links"] == 2 and combined["source"] == "measurement"
     assert combined["network"]["n_links"] == 5 and combined["measurement"]["n_links"] == 2
     measured = _predict(rig_rec.root, capsys, "--answer", "measurement")
     assert measured["n_links"] == 2 and measured["network"] is None and measured["model"] is None
     assert measured["link_lengths_pu"] == combined["link_lengths_pu"]
+
+
+def test_a_network_sure_of_another_count_overrules_the_measurement(rig_rec, sure_of_five, capsys):
+    """Sure of 5 (p > 0.95, `NETWORK_OVERRULES_P`): the combined answer is the network's, every
+    field labelled so, the measurement's 2 beside it."""
+    combined = _predict(rig_rec.root, capsys, "--model", str(sure_of_five))
+    assert combined["n_links"] == 5 and combined["source"] == "network"
+    assert combined["link_lengths_pu"] == combined["network"]["link_lengths_pu"]
+    assert combined["measurement"]["n_links"] == 2
 
 
 def test_a_network_that_is_not_sure_gives_no_answer(rig_rec, tmp_path, capsys):
@@ -101,14 +115,17 @@ def test_a_network_that_is_not_sure_gives_no_answer(rig_rec, tmp_path, capsys):
     assert res["network"]["n_links"] is None and res["network"]["probabilities"] == pytest.approx([1 / 6] * 6, abs=1e-6)
 
 
-def test_the_words_say_what_the_json_says(rig_rec, sure_of_five, capsys):
-    code, out, err = run_cli(["predict", str(rig_rec.root), "--model", str(sure_of_five)], capsys)
+def test_the_words_say_what_the_json_says(rig_rec, leaning_to_five, sure_of_five, capsys):
+    code, out, err = run_cli(["predict", str(rig_rec.root), "--model", str(leaning_to_five)], capsys)
     assert code == 0, err
     lines = out.splitlines()
     assert lines[0].startswith("answer (combined): 2 moving links") and " mm" in lines[0]
     assert lines[1].strip() == "from: the measurement"
-    assert lines[2].startswith("network: 5 moving links") and "probability 1.000 on 5" in lines[2]
+    assert lines[2].startswith("network: 5 moving links") and "probability 0.900 on 5" in lines[2]
     assert lines[3].startswith("measurement: 2 moving links") and "RMS" in lines[3]
+    code, out, err = run_cli(["predict", str(rig_rec.root), "--model", str(sure_of_five)], capsys)
+    lines = out.splitlines()
+    assert lines[0].startswith("answer (combined): 5 moving links") and lines[1].strip() == "from: the network"
 
 
 @pytest.mark.parametrize(
@@ -179,3 +196,41 @@ def test_the_measured_count_stands_whatever_the_network_counts(rms_m, network_n)
     assert set(source.values()) == {"measurement"}
     out = Prediction(answer, source, network, measurement, "combined", "profile", "m.pt", "rec", 0.08).to_json()
     assert out["n_links"] == 2 and out["network"]["n_links"] == network_n
+
+
+def _sure_network(n: int, p: float):
+    from spare_twin.predict.estimate import Estimate, NetworkEvidence
+
+    probabilities = tuple(p if k == n else (1 - p) / 5 for k in range(1, 7))
+    return Estimate(n, (1.2,) + (0.5,) * n, (0.3,) * n, NetworkEvidence(probabilities))
+
+
+@pytest.mark.parametrize("p, answered", [(0.99, True), (0.9, False)])
+def test_where_the_layers_blur_only_a_sure_network_answers(p, answered):
+    """A chain whose layers are not told apart (`layers_told_apart`) has no measured count; the
+    network's stands where it is sure, and the answer says it is the network's."""
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.combine import combined
+    from spare_twin.predict.estimate import Estimate
+
+    why = "its layers' plate centres spread 1.9 mm (RMS) across the chain's plane"
+    m = LayerMeasurement(None, None, None, (600, 500, 120, 420, 0, 0, 0, 0), 0.001, why, 0.0019, layers_blurred=True)
+    network = _sure_network(4, p)
+    answer, source = combined(m, network, Estimate.none(f"no chain measured: {why}"))
+    if answered:
+        assert answer.n_links == 4 and set(source.values()) == {"network"}
+    else:
+        assert answer.n_links is None and source is None and why in answer.reason
+
+
+def test_points_on_no_chain_give_no_answer_however_sure_the_network():
+    """Points centimetres off any chain (a blurred capture): no answer, though the network is sure
+    (bench seed 30762: 6 links at p = 0.99 for 1)."""
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.combine import combined
+    from spare_twin.predict.estimate import Estimate
+
+    why = "the points lie 16 mm (RMS) off the best chain of 2 links"
+    m = LayerMeasurement(None, None, None, (900, 700, 0, 0, 0, 0, 0, 0), 0.016, why)
+    answer, source = combined(m, _sure_network(6, 0.99), Estimate.none(f"no chain measured: {why}"))
+    assert answer.n_links is None and source is None and why in answer.reason

@@ -192,6 +192,9 @@ class LayerMeasurement:
     t_rms_m: float | None = None
     """RMS spread of the points' plate centres across the plane about each layer's own slanted
     plane (`layer_t_rms_m`): how well the layers hold one plate each."""
+    layers_blurred: bool = False
+    """True where the points lie on a chain but its layers are not told apart (`layers_told_apart`):
+    no count, though the points are no reason to refuse another estimator's (`predict.combine`)."""
     comb_zero: CombZero | None = field(default=None, repr=False, compare=False)
     """The followed comb's zero across the plane, which levels the profile network's input
     (`measure.level`); None where no comb was followed."""
@@ -455,7 +458,7 @@ def layers_told_apart(m: LayerMeasurement, cfg: LayersConfig) -> LayerMeasuremen
         f"its layers' plate centres spread {1000 * m.t_rms_m:.1f} mm (RMS) across the chain's plane, as "
         "far as a link's step to the next layer: its layers are not told apart (a blurred capture)"
     )
-    return replace(m, n_links=None, lengths_pu=None, angles_rad=None, reason=reason)
+    return replace(m, n_links=None, lengths_pu=None, angles_rad=None, reason=reason, layers_blurred=True)
 
 
 def past_last_layer(labels: np.ndarray) -> bool:

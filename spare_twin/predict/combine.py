@@ -2,7 +2,8 @@
 
 The yaw-free network reads a 64 x 80 profile image; the measurement reads every point and the
 layer each lies in, so where it finds a chain its count, lengths and angles are the answer and the
-network's stand only where it finds none (too few points off the base layer). Measured on the
+network's stand only where it finds none (too few points off the base layer) or the network is sure
+of another count (below). Measured on the
 held-out seed-1 test split and on hand-held-like views (docs/observe.md): the network alone counted
 0.80 of them right, the measurement 0.97..1.00. `predict` answers with `combined`; `evaluate`'s
 batches with `overrule`, the same choice without `predict`'s abstentions (the rig's test split is
@@ -15,6 +16,18 @@ On hand-held captures the network alone counts 0.67-0.71 right, and with the mea
 captures of `dataset --handheld --seed 1` and the real sides of bench seeds 30318-30389, now
 development) that rule turned 9 right counts and 1 wrong one into no answer (docs/sim2real.md). Both
 estimates are still in `predict`'s output, the network's beside the answer.
+
+Since release 0.6.26 the network's count stands where it is sure of it (`NETWORK_OVERRULES_P`) and
+the measurement counts otherwise or cannot tell its layers apart (`LayerMeasurement.layers_blurred`);
+where the points lie on no chain, nothing stands. The network that earned it reads the levelled profile
+with its mirror image (`measure.level`, `models.decode_mirrored`): 0.94-0.98 alone on hand-held
+captures where release 0.6.10's read 0.67-0.71. On 838 development recordings (the real, clean-render
+and rig sides of bench seeds 30438-30565 (69 objects) and 30678-30869) it was that sure of another
+count 4 times and right each time (30563, 30842 real; 30441, 30821 clean renders), and sure of its count
+where the layers blurred 3 times, right each time (30867 real and clean renders, 30773 rig); the
+network's confident wrong answers there were on points that lie on no chain (30762 real: 6 links at
+p = 0.99 for 1, the points 16 mm off any chain), which stay unanswered. Below 0.95 it is not safe:
+it dissented at 0.84 and 0.87 and was wrong (30809, 30856 real).
 
 Until release 0.6.4 the network's count stood where it was confident of exactly one link more than
 the measurement (a last link hidden behind the others). On the bench's captures with a real print's
@@ -30,16 +43,22 @@ import torch
 
 from spare_twin.measure.layers import LayerMeasurement
 from spare_twin.measure.slots import LENGTH_SLOTS, measurement_slots
-from spare_twin.predict.estimate import FIELDS, Estimate
+from spare_twin.predict.estimate import FIELDS, Estimate, NetworkEvidence
 
-__all__ = ["LENGTH_SLOTS", "combined", "measurement_slots", "overrule"]
+__all__ = ["LENGTH_SLOTS", "NETWORK_OVERRULES_P", "combined", "measurement_slots", "overrule"]
+
+#: The network's count stands against the measurement's, or where the measurement cannot tell its
+#: layers apart, when its most probable count has at least this probability (module docstring).
+NETWORK_OVERRULES_P = 0.95
 
 
 def overrule(res: dict, slots: dict) -> dict:
     """`models.decode`'s output with each row's count, lengths and angles replaced by the measured
-    ones where the measurement found a chain (`slots`: `measurement_slots`, batched as tensors)."""
+    ones where the measurement found a chain and the network is not sure of another count
+    (`slots`: `measurement_slots`, batched as tensors)."""
     measured = torch.as_tensor(slots["measured_n"]).reshape(-1).to(res["pred_n"].device)
-    found = measured > 0
+    sure = res["probabilities"].max(1).values >= NETWORK_OVERRULES_P
+    found = (measured > 0) & ~(sure & (res["pred_n"] != measured))
     out = dict(res)
     out["pred_n"] = torch.where(found, measured, res["pred_n"])
     lengths = torch.as_tensor(slots["measured_lengths_pu"]).reshape(len(found), -1).to(res["lengths_e2e"])
@@ -51,12 +70,25 @@ def overrule(res: dict, slots: dict) -> dict:
 
 
 def combined(m: LayerMeasurement, network: Estimate, measurement: Estimate) -> tuple[Estimate, dict | None]:
-    """(answer, source) of the profile network's estimate and the measurement `m` of the same points: the
-    measurement's answer where it found a chain, each field labelled with the estimate it came from.
-    Where the measurement found no chain the network's estimate stands as it is (its own abstention
-    included); where the measurement's points lie on no chain there is no answer."""
+    """(answer, source) of the profile network's estimate and the measurement `m` of the same points,
+    each field labelled with the estimate it came from: the measurement's answer where it found a
+    chain, unless the network is sure of another count (`NETWORK_OVERRULES_P`); where the measurement
+    found no chain the network's estimate as it is (its own abstention included), and where it cannot
+    tell the chain's layers apart the network's only where it is sure; where the points lie on no
+    chain there is no answer."""
+    everything_network = None if network.n_links is None else {f: "network" for f in FIELDS}
+    if m.layers_blurred:
+        return (network, everything_network) if _sure(network) else (Estimate.none(measurement.reason), None)
     if m.reason is not None or (m.n_links is not None and measurement.n_links is None):
         return Estimate.none(measurement.reason), None  # the points lie on no chain, or too weakly
-    if m.n_links is None:
-        return network, (None if network.n_links is None else {f: "network" for f in FIELDS})
+    if m.n_links is None or (_sure(network) and network.n_links != measurement.n_links):
+        return network, everything_network
     return replace(measurement, evidence=None), {f: "measurement" for f in FIELDS}
+
+
+def _sure(network: Estimate) -> bool:
+    """Whether the network gives a count it is sure of (`NETWORK_OVERRULES_P`)."""
+    evidence = network.evidence
+    if network.n_links is None or not isinstance(evidence, NetworkEvidence) or evidence.probabilities is None:
+        return False
+    return max(evidence.probabilities) >= NETWORK_OVERRULES_P
