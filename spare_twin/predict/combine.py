@@ -27,7 +27,7 @@ count 4 times and right each time (30563, 30842 real; 30441, 30821 clean renders
 where the layers blurred 3 times, right each time (30867 real and clean renders, 30773 rig); the
 network's confident wrong answers there were on points that lie on no chain (30762 real: 6 links at
 p = 0.99 for 1, the points 16 mm off any chain), which stay unanswered. Below 0.95 it is not safe:
-it dissented at 0.84 and 0.87 and was wrong (30809, 30856 real).
+it dissented 4 times at 0.84-0.88 and was wrong 3 of them (30809, 30856 real; 30461 clean renders).
 
 Until release 0.6.4 the network's count stood where it was confident of exactly one link more than
 the measurement (a last link hidden behind the others). On the bench's captures with a real print's
