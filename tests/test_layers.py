@@ -413,32 +413,39 @@ def test_a_layer_that_holds_two_links_spreads_across_the_plane_by_the_step_betwe
 @pytest.mark.parametrize(
     "comb, followed, chosen",
     [
+        # (RMS, past the last layer, pieces split) of each reading
         # bench seed 30421 (2 links): the comb put the second link's near half in the first link's layer
-        ((0.00325, False), (0.00015, False), "followed"),
-        ((0.00030, False), (0.00025, False), "comb"),  # a near tie keeps the comb's
-        ((0.00063, False), (0.00032, False), "followed"),
+        ((0.00325, False, 0), (0.00015, False, 0), "followed"),
+        ((0.00030, False, 0), (0.00028, False, 0), "comb"),  # a near tie keeps the comb's
+        ((0.00030, False, 0), (0.00025, False, 0), "followed"),
+        ((0.00063, False, 0), (0.00032, False, 0), "followed"),
+        ((0.00032, False, 0), (0.00063, False, 0), "comb"),
         # bench seed 30431 (6 links): the comb read 53 of 1,004 points past layer 6 (no answer), the
         # followed comb none
-        ((0.00032, True), (0.00063, False), "followed"),
-        ((0.00063, False), (0.00032, True), "comb"),
+        ((0.00032, True, 0), (0.00063, False, 0), "followed"),
+        ((0.00063, False, 0), (0.00032, True, 0), "comb"),
+        # bench seed 30879 (4 links): the comb's reading held two pieces in one layer and the right chain
+        ((0.00224, False, 1), (0.00269, False, 0), "comb"),
+        ((0.00224, False, 1), (0.00230, False, 0), "followed"),  # a near tie: the one piece a layer
+        ((0.00230, False, 0), (0.00224, False, 1), "comb"),
     ],
 )
 def test_of_two_readings_with_one_count_the_one_that_misreads_nothing_and_fits_closer_stands(
     monkeypatch, comb, followed, chosen
 ):
-    """Two readings of the layers that count the same links: the one that misreads no plate
-    (`past_last_layer`) stands; where neither does, the followed comb's only where its chain holds its
-    points much closer (`FOLLOWED_RMS_SHARE`), since there the comb put a piece of one link in another's
-    layer and the joints between them where they are not."""
+    """Two readings of the layers that count the same links: the one that reads no points past the
+    last layer (`past_last_layer`) stands; where neither does, the one whose chain holds its points
+    clearly closer (`ONE_COUNT_RMS_SHARE`), whether or not it put two pieces in one layer
+    (`split_layers`, which tells counts apart); on a near tie the one piece a layer, then the comb's."""
     points = np.column_stack([np.linspace(0, 0.2, 400), np.zeros(400), np.full(400, 0.03)])
     readings = [(np.zeros(400, np.int64), np.zeros(400)), (np.ones(400, np.int64), np.zeros(400))]
     lengths = {0: np.full(3, 1.0), 1: np.full(3, 2.0)}  # which reading stood, by its lengths
     measured = [
-        L.LayerMeasurement(2, lengths[i], np.zeros(2), (200,) * 3, rms) for i, (rms, _) in enumerate((comb, followed))
+        L.LayerMeasurement(2, lengths[i], np.zeros(2), (200,) * 3, rms) for i, (rms, *_) in enumerate((comb, followed))
     ]
     monkeypatch.setattr(L, "layer_readings", lambda *args: readings)
     monkeypatch.setattr(L, "_measure_reading", lambda p, labels, *args: measured[int(labels[0])])
-    monkeypatch.setattr(L, "split_layers", lambda *args: 0)
+    monkeypatch.setattr(L, "split_layers", lambda sz, labels, cfg: (comb, followed)[int(labels[0])][2])
     monkeypatch.setattr(L, "past_last_layer", lambda labels: (comb, followed)[int(labels[0])][1])
     stood = L.measure_layers(points, 0.08)
     assert stood.n_links == 2 and stood.lengths_pu[0] == {"comb": 1.0, "followed": 2.0}[chosen]
