@@ -449,3 +449,42 @@ def test_of_two_readings_with_one_count_the_one_that_misreads_nothing_and_fits_c
     monkeypatch.setattr(L, "past_last_layer", lambda labels: (comb, followed)[int(labels[0])][1])
     stood = L.measure_layers(points, 0.08)
     assert stood.n_links == 2 and stood.lengths_pu[0] == {"comb": 1.0, "followed": 2.0}[chosen]
+
+
+@pytest.mark.parametrize(
+    "passed, chosen",
+    [
+        ((5, 0.00130), "passed"),  # bench seed 30880: the comb's reading passed through the right chain
+        ((5, 0.00250), "followed"),  # a near tie: the reading that settled
+        ((4, 0.00110), "followed"),  # another count: no count from a reading that did not settle
+    ],
+)
+def test_a_reading_that_did_not_settle_places_the_joints_where_it_passed_clearly_closer(monkeypatch, passed, chosen):
+    """One reading's checks did not settle (`MAX_LOOSENING`): the closest chain it passed through
+    stands only where it counts as the other reading's chain and holds its points clearly closer
+    (`ONE_COUNT_RMS_SHARE`); otherwise the reading that settled."""
+    points = np.column_stack([np.linspace(0, 0.2, 400), np.zeros(400), np.full(400, 0.03)])
+    readings = [(np.zeros(400, np.int64), np.zeros(400)), (np.ones(400, np.int64), np.zeros(400))]
+    n, rms = passed
+    closest = L.LayerMeasurement(n, np.full(n + 1, 1.0), np.zeros(n), (200,) * (n + 1), rms)
+    unsettled = L.LayerMeasurement(None, None, None, (200,) * 6, 0.0026, "did not settle", closest_passed=closest)
+    followed = L.LayerMeasurement(5, np.full(6, 2.0), np.zeros(5), (200,) * 6, 0.00256)
+    monkeypatch.setattr(L, "layer_readings", lambda *args: readings)
+    monkeypatch.setattr(L, "_measure_reading", lambda p, labels, *args: (unsettled, followed)[int(labels[0])])
+    stood = L.measure_layers(points, 0.08)
+    assert stood.lengths_pu[0] == {"passed": 1.0, "followed": 2.0}[chosen]
+
+
+def test_a_reading_that_did_not_settle_keeps_the_closest_chain_it_passed_through(monkeypatch):
+    """With every reading's checks held to end where they began (`MAX_LOOSENING` below 1), the
+    measurement gives no count and says why, and keeps the chain it passed through: the one it
+    measures with the bound as shipped."""
+    lengths, angles = CHAINS[1]
+    p, v = plates(lengths, angles, np.random.default_rng(1))
+    settled = measure_layers(p, SCALE, view_dirs=v)
+    monkeypatch.setattr(L, "MAX_LOOSENING", 0.5)
+    unsettled = measure_layers(p, SCALE, view_dirs=v)
+    assert settled.n_links == 3 and unsettled.n_links is None and "did not settle" in unsettled.reason
+    passed = unsettled.closest_passed
+    assert passed.n_links == 3 and passed.rms_m == pytest.approx(settled.rms_m)
+    assert np.allclose(passed.lengths_pu, settled.lengths_pu) and np.allclose(passed.angles_rad, settled.angles_rad)

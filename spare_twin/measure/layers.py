@@ -195,6 +195,9 @@ class LayerMeasurement:
     layers_blurred: bool = False
     """True where the points lie on a chain but its layers are not told apart (`layers_told_apart`):
     no count, though the points are no reason to refuse another estimator's (`predict.combine`)."""
+    closest_passed: LayerMeasurement | None = field(default=None, repr=False, compare=False)
+    """Where the reading did not settle (`MAX_LOOSENING`): the closest chain its checks passed through,
+    which the other reading's chain of that count may be compared with (`_chosen_reading`)."""
     comb_zero: CombZero | None = field(default=None, repr=False, compare=False)
     """The followed comb's zero across the plane, which levels the profile network's input
     (`measure.level`); None where no comb was followed."""
@@ -402,10 +405,20 @@ def _chosen_reading(
     if len(readings) == 1 or np.array_equal(readings[1][0], readings[0][0]):  # the rig: one reading
         return as_designed
     followed = _measure_reading(p, *readings[1], print_scale, cfg, thickness, plate_t_m)
-    if followed.n_links is None:
-        return as_designed
-    if as_designed.n_links is None:
-        return followed
+    if followed.n_links is None or as_designed.n_links is None:
+        # a reading that did not settle passed through a chain: where it counts as the other reading
+        # does and holds the points clearly closer, it places the joints (bench seed 30880, 5 links:
+        # the comb's reading passed through the right chain at 1.3 mm RMS and its checks took it to 4
+        # links at 2.6 mm; the followed reading's 5 at 2.56 mm had its joints 62 deg off)
+        for unsettled, other in ((as_designed, followed), (followed, as_designed)):
+            passed = unsettled.closest_passed
+            if (
+                passed is not None
+                and passed.n_links == other.n_links
+                and passed.rms_m <= ONE_COUNT_RMS_SHARE * other.rms_m
+            ):
+                return passed
+        return as_designed if followed.n_links is None else followed
     # a reading past the last layer a chain can have misread the comb; one with two pieces in one layer
     # misread a plate, which tells counts apart, but with one count the closer chain places its joints
     past = [past_last_layer(labels) for labels, _ in readings]
@@ -571,13 +584,31 @@ def _measure_reading(
             "a blurred capture (its views out of register), or no chain"
         )
         return LayerMeasurement(None, None, None, per_layer, rms, reason)
-    (best_n, _), (_, best_rms) = min(fitted.items(), key=lambda item: item[1][1])
+    (best_n, best_labels), (best_x, best_rms) = min(fitted.items(), key=lambda item: item[1][1])
     if rms > MAX_LOOSENING * best_rms:
         reason = (
             f"the layers' reading did not settle: its checks took a chain of {best_n} links at "
             f"{1000 * best_rms:.1f} mm (RMS) to {n} at {1000 * rms:.1f} mm"
         )
-        return LayerMeasurement(None, None, None, per_layer, rms, reason)
+        best_labels_n = np.frombuffer(best_labels, labels_n.dtype)
+        passed = _chain(
+            p, best_labels_n, best_n, best_x, best_rms, count_links(best_labels_n, cfg)[1], print_scale, plate_t_m
+        )
+        return LayerMeasurement(None, None, None, per_layer, rms, reason, closest_passed=passed)
+    return _chain(p, labels_n, n, x, rms, per_layer, print_scale, plate_t_m)
+
+
+def _chain(
+    p: np.ndarray,
+    labels_n: np.ndarray,
+    n: int,
+    x: np.ndarray,
+    rms: float,
+    per_layer: tuple[int, ...],
+    print_scale: float,
+    plate_t_m: np.ndarray,
+) -> LayerMeasurement:
+    """The measurement of the chain `x` fitted at `rms` to points `p` read in layers `labels_n` (0..n)."""
     angles = (x[n + 2 :] + np.pi) % (2 * np.pi) - np.pi
     t_rms = layer_t_rms_m(p[:, [0, 2]], plate_t_m, labels_n, n)
     return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms, t_rms_m=t_rms)
