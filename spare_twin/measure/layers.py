@@ -14,9 +14,9 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    is kept (`split_layers`), and between two such, the one whose chain lies closer to its points in
    the plane and across it (`LayerMeasurement.cost_m`: a layer holding two links holds the whole
    pitch's step between them, which no one plate's plane fits); with one count, the one whose chain
-   fits clearly closer (`ONE_COUNT_RMS_SHARE`), else the one piece a layer, else the comb's. In each reading, a layer's
-   stray fragments, small pieces apart from its plate among the points of the layer next to it, go to
-   that layer first (`measure.fragments`). The followed comb's zero is kept on the measurement: it
+   fits clearly closer (`ONE_COUNT_RMS_SHARE`), else the one piece a layer, else the comb's. In each
+   reading, a layer's stray fragments, small pieces apart from its plate among the points of the layer
+   next to it, go to that layer first (`measure.fragments`). The followed comb's zero is kept on the measurement: it
    levels the profile network's input (`measure.level`).
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
    2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
@@ -445,11 +445,11 @@ def _chosen_reading(
 #: other put a piece of one link in another's layer, and its fit put the joint between them where it
 #: is not (bench seed 30421, 2 links: RMS 3.3 mm against 0.15 mm, the last link measured 18 mm for
 #: 29 mm; 30879, 4 links: the comb's reading at 2.24 mm had two pieces in one layer, the followed one's
-#: at 2.69 mm its joints 65 deg off). A near tie keeps the comb's. 0.65 (followed only) until 0.6.27;
-#: on the 480 real and clean-render recordings of seeds 30678-30917, 0.9 changed 8 answers, 7 closer
-#: to the truth (joint angles 2.12 -> 1.94 deg mean over the 327 counted right); 1.0 (no margin) put a
-#: synthetic capture's joints 4.5 deg off (`test_noise_shear_and_sides_out_of_register`, 0.682 against
-#: 0.668 mm).
+#: at 2.69 mm its joints 65 deg off). A near tie keeps the comb's. 0.65 (followed only) until 0.6.27.
+#: Run end to end on the 480 real and clean-render recordings of seeds 30678-30917 (with
+#: `closest_passed`), no count changed and 22 answers moved, 30879 65 -> 4 deg (docs/observe.md);
+#: 1.0 (no margin) put a synthetic capture's joints 4.5 deg off
+#: (`test_noise_shear_and_sides_out_of_register`, 0.682 against 0.668 mm).
 ONE_COUNT_RMS_SHARE = 0.9
 #: A SPARE chain has links in layers 0..6 only; where more than this share of the points lie past the
 #: sixth link's layer, the reading (or the object) is thicker than any chain (`past_last_layer`;
