@@ -108,6 +108,23 @@ def test_a_plane_direction_degrees_off():
     assert np.degrees(np.abs(m.angles_rad - angles)).mean() < 5.0
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_a_chain_seen_from_its_front_is_fitted_from_the_joint_link_1_shows(seed):
+    """Seed 30932's chain (3 links, the second folded back over the first) seen from its front and
+    a tenth of its back: link 1 hides the base's top, whose points end a centimetre below joint 1,
+    and both starts from there turned link 1 by 25 deg and the chain inside out (seeds 0 and 1 here,
+    until release 0.6.28). The fit starts also from where link 1's plate holds its points
+    (`fit._first_joints`): every joint within 20 deg."""
+    lengths, angles = [1.35, 0.56, 0.51, 0.39], list(np.radians([92.0, -149.0, -25.0]))
+    rng = np.random.default_rng(seed)
+    p, v = plates(lengths, angles, rng, noise_m=0.001)
+    keep = (v[:, 1] > 0) | (rng.random(len(p)) < 0.1)
+    m = measure_layers(p[keep], SCALE, view_dirs=v[keep])
+    assert m.n_links == 3
+    assert np.degrees(np.abs(m.angles_rad - angles)).max() < 20.0
+    assert np.abs(m.lengths_pu - lengths).max() < 0.15
+
+
 def test_a_few_stray_points_are_no_link():
     """A dozen points a layer past the last plate (a pin head, a flying pixel) do not add a link."""
     lengths, angles = CHAINS[0]
