@@ -27,9 +27,9 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    to the nearest point of that layer beyond a point spacing. Both ends of a joint are held by the
    two plates meeting there, from opposite sides, so a length is measured, not guessed. Two starts,
    both read from the layers from joint 1 (the base's top, and where link 1's plate holds its points
-   clearly better: `fit._first_joints`), the lowest cost kept: each link's points' centroid lies half its length
-   from its joint (`fit._initial`), and link by link from the base, each turned to where its plate holds
-   its layer's points best (`fit._initial_sequential`). No network is needed, and folded chains do not
+   clearly better: `fit._first_joints`), the lowest cost kept: each link's points' centroid lies half
+   its length from its joint (`fit._initial`), and link by link from the base, each turned to where
+   its plate holds its layer's points best (`fit._initial_sequential`). No network is needed, and folded chains do not
    trap the fit. A weak pull on the two free ends (the base's top, the last link's tip) keeps the
    shortest chain that holds the points, where the coverage tolerance alone let them drift out.
    The fit, its starts and its residuals' Jacobian (in closed form) are `measure.fit`.
