@@ -67,6 +67,32 @@ def test_fragments_that_are_no_stray_stay_where_they_were_read(why):
     assert np.array_equal(adopted, read)
 
 
+def test_readings_between_two_crossing_plates_go_to_the_nearer_of_them():
+    """Link 3 (layer 3) crosses in front of the base column (layer 0), as in the rig view of bench
+    seed 31004: readings that mix the two faces put plate centres between them, read as layers 1
+    and 2, 4-6 cm from those layers' plates, among neighbours of layers 0 and 3 (about 40 % each,
+    about 20 % the other piece). Each goes to the nearer of the two (its plate centre moved by the
+    same whole layers); nothing else moves. Before release 0.6.29 both stayed: neither layer next
+    to theirs held most of their neighbours."""
+    column = _grid(-0.006, 0.006, 0.02, 0.13)
+    arm = _grid(0.0, 0.08, 0.118, 0.13)
+    arm = arm[arm[:, 0] > 0.008]
+    down = _grid(0.07, 0.082, 0.06, 0.116)  # link 2, down from link 1's end
+    across = _grid(-0.02, 0.068, 0.055, 0.06)  # link 3, back across the column
+    sz = np.concatenate([column, arm, down, across])
+    labels = np.repeat([0, 1, 2, 3], [len(column), len(arm), len(down), len(across)])
+    at_crossing = (np.abs(sz[:, 0]) < 0.006) & (labels == 0)
+    low = at_crossing & (sz[:, 1] > 0.049) & (sz[:, 1] < 0.0555)
+    high = at_crossing & (sz[:, 1] > 0.0555) & (sz[:, 1] < 0.063)
+    assert low.sum() >= MIN_POINTS and high.sum() >= MIN_POINTS
+    read = np.where(low, 1, np.where(high, 2, labels))
+    centres = np.where(low, 0.9, np.where(high, 2.3, labels.astype(np.float64)))
+    adopted, adopted_centres = adopt_fragments(sz, read, centres, RADIUS_M, MIN_POINTS)
+    assert np.all(adopted[low] == 0) and np.all(adopted[high] == 3)
+    assert np.allclose(adopted_centres[low], -0.1) and np.allclose(adopted_centres[high], 3.3)
+    assert np.array_equal(adopted[~(low | high)], labels[~(low | high)])
+
+
 @pytest.fixture
 def folded_chain():
     """A 2-link chain as bench seed 30601 (base 124 mm, link 1 out sideways 43 mm, link 2 folded back
