@@ -16,6 +16,7 @@ import hashlib
 import json
 import pickle
 import shutil
+import signal
 import subprocess
 import sys
 from pathlib import Path
@@ -26,6 +27,15 @@ from filelock import FileLock
 import spare_twin  # noqa: F401  (sets the BLAS threads, before anything loads numpy)
 
 REPO = Path(__file__).resolve().parents[1]
+
+# A terminal starts a command with SIGINT at its default; a test run started in the background (`cmd &`
+# in a script, `nohup`) ignores it, and every process it starts inherits that, so the Ctrl-C tests would
+# see no interrupt (exit 0 where 130 is asked) and the commands would be right to ignore it
+# (`terminal.signals_as_interrupts` keeps an ignored signal ignored). Caught here, it raises
+# KeyboardInterrupt in this process and is at its default in every process the tests start (exec resets
+# a caught signal), as under a terminal.
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 #: The files that take half a minute or more, slowest first (seconds summed over their tests at release
 #: 0.6.15, on the 2-core machine: 99, 94, 83, 74, 69, 68, 63, 53, 51, 38, 37, 35, 33, 30). pytest-xdist
@@ -100,7 +110,6 @@ def interrupt_pool(argv: list[str], cwd: Path, env: dict | None = None, workers_
     """Run `argv`, send SIGINT to its whole process group (a terminal's Ctrl-C) once its pool of
     `workers_wanted` spawned workers is up, and return (exit code, stderr) after checking that no
     worker outlived it."""
-    import signal
     import subprocess
     import time
 
