@@ -70,7 +70,7 @@ def test_fragments_that_are_no_stray_stay_where_they_were_read(why):
 def test_readings_between_two_crossing_plates_go_to_the_nearer_of_them():
     """Link 3 (layer 3) crosses in front of the base column (layer 0), as in the rig view of bench
     seed 31004: readings that mix the two faces put plate centres between them, read as layers 1
-    and 2, 4-6 cm from those layers' plates, among neighbours of layers 0 and 3 (about 40 % each,
+    and 2, 6-7 cm from those layers' plates, among neighbours of layers 0 and 3 (about 40 % each,
     about 20 % the other piece). Each goes to the nearer of the two (its plate centre moved by the
     same whole layers); nothing else moves. Before release 0.6.29 both stayed: neither layer next
     to theirs held most of their neighbours."""
