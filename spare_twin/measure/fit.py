@@ -88,8 +88,8 @@ def _segment_derivatives(x: np.ndarray, n: int, cfg: LayersConfig) -> tuple[np.n
 class ChainResiduals:
     """The fit's residuals (`residuals`) and their Jacobian (`jacobian`) for one set of layers."""
 
-    def __init__(self, points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig):
-        self.n, self.cfg = n, cfg
+    def __init__(self, points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig, seen_from: int = 0):
+        self.n, self.cfg, self.seen_from = n, cfg, seen_from
         self.points = np.concatenate(points_sz_m) if points_sz_m else np.zeros((0, 2))
         self.layer = np.repeat(np.arange(len(points_sz_m)), [len(p) for p in points_sz_m])
         self.total = len(self.points)
@@ -131,12 +131,33 @@ class ChainResiduals:
             )
             found = np.isfinite(gap)
             nearest[found] = self.points[idx[found]]
+            if self.seen_from:  # nothing to cover where the nearer plate hides the disc
+                gap = np.where(self._hidden(samples, starts), np.inf, gap)
         state = dict(
             starts=starts, ends=ends, ab_norm=ab_norm, along=along, u=u, off=off, dist=dist,
             samples=samples, gap=gap, nearest=nearest,
         )  # fmt: skip
         self._cached = (key, state)
         return state
+
+    def _hidden(self, samples: np.ndarray, starts: np.ndarray) -> np.ndarray:
+        """(n + 1, S): the samples in a joint's disc that the nearer plate there hides from a capture
+        seen from one side (`seen_from`), where that plate's own points show it (one of its layer's
+        points within `coverage_tolerance_m`)."""
+        hw, n = self.cfg.half_width_m, self.n
+        hidden = np.zeros(samples.shape[:2], bool)
+        joints = starts[1:]
+        if self.seen_from < 0:  # seen from -t, the parent nearer: plate k's start disc behind plate k - 1
+            rows, nearer = np.arange(1, n + 1), np.arange(n)
+        else:  # seen from +t, the child nearer: plate k's end disc behind plate k + 1
+            rows, nearer = np.arange(n), np.arange(1, n + 1)
+        disc = np.linalg.norm(samples[rows] - joints[:, None], axis=2) <= hw
+        height = _LAYER_SEPARATION_M * np.broadcast_to(nearer[:, None, None], (*disc.shape, 1)).astype(float)
+        shown, _ = self.tree.query(
+            np.concatenate([samples[rows], height], 2), distance_upper_bound=self.cfg.coverage_tolerance_m
+        )
+        hidden[rows] = disc & np.isfinite(shown)
+        return hidden
 
     def residuals(self, x: np.ndarray) -> np.ndarray:
         cfg, st = self.cfg, self._state(x)
@@ -184,30 +205,45 @@ class ChainResiduals:
 MAX_EVALUATIONS = 200
 
 
+def _fit_from(chain: ChainResiduals, x0: np.ndarray):
+    """Robust least squares of `chain` from x0 (scipy's result)."""
+    n = chain.n
+    lo = np.concatenate([[-0.02], np.full(n + 1, 0.005), np.full(n, -np.inf)])
+    hi = np.concatenate([[0.02], np.full(n + 1, 0.5), np.full(n, np.inf)])
+    return least_squares(
+        chain.residuals,
+        np.clip(x0, lo + 1e-9, hi - 1e-9),
+        jac=chain.jacobian,
+        bounds=(lo, hi),
+        loss="soft_l1",
+        f_scale=0.003,
+        max_nfev=MAX_EVALUATIONS,
+    )
+
+
 def fit_layers(points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig) -> tuple[np.ndarray, float]:
     """(x = [s0, L0..Ln, a1..an], rms) of the chain fitted to each layer's (M_k, 2) in-plane points:
     robust least squares from both starts (`_initial`, `_initial_sequential`) from each place of joint
     1 (`_first_joints`), the lowest cost kept."""
     chain = ChainResiduals(points_sz_m, n, cfg)
-    joints1 = _first_joints(points_sz_m, cfg)
-    lo = np.concatenate([[-0.02], np.full(n + 1, 0.005), np.full(n, -np.inf)])
-    hi = np.concatenate([[0.02], np.full(n + 1, 0.5), np.full(n, np.inf)])
     fits = [
-        least_squares(
-            chain.residuals,
-            np.clip(x0, lo + 1e-9, hi - 1e-9),
-            jac=chain.jacobian,
-            bounds=(lo, hi),
-            loss="soft_l1",
-            f_scale=0.003,
-            max_nfev=MAX_EVALUATIONS,
-        )
-        for joint1 in joints1
+        _fit_from(chain, x0)
+        for joint1 in _first_joints(points_sz_m, cfg)
         for x0 in (_initial(points_sz_m, n, cfg, joint1), _initial_sequential(points_sz_m, n, cfg, joint1))
     ]
     res = min(fits, key=lambda r: r.cost)  # the first on a tie
     rms = float(np.sqrt(np.mean(res.fun[: chain.total] ** 2))) if chain.total else 0.0
     return res.x, rms
+
+
+def refit_seen_from(
+    points_sz_m: list[np.ndarray], n: int, cfg: LayersConfig, x: np.ndarray, seen_from: int
+) -> np.ndarray:
+    """The chain `x` (`fit_layers`) refitted to the same layers with the joints' discs that the nearer
+    plate hides from a capture seen from one side of the plane (`seen_from` -1 / +1) left uncovered:
+    a plate's coverage pulls its end in to where its own points stop, a disc short of the joint
+    behind the nearer plate."""
+    return _fit_from(ChainResiduals(points_sz_m, n, cfg, seen_from), x).x
 
 
 #: Joint 1's height is looked for this far below and above the base's top (in half widths, `_first_joints`),

@@ -47,6 +47,25 @@ def chain_sides(view_t: np.ndarray, min_cosine: float) -> np.ndarray:
     return np.where(view_t > min_cosine, 1, np.where(view_t < -min_cosine, -1, 0))
 
 
+#: A capture whose faces seen from one side of the plane are fewer than this share of all its faces
+#: seen squarely was seen from the other side only (`seen_from_side`).
+ONE_SIDE_SHARE = 0.05
+
+
+def seen_from_side(view_t: np.ndarray, min_cosine: float) -> int:
+    """-1 / +1 where the points were seen from the -t / +t side of the plane only (`ONE_SIDE_SHARE`),
+    0 where from both or neither (`chain_sides`)."""
+    side = chain_sides(view_t, min_cosine)
+    faces = int(np.count_nonzero(side))
+    if faces == 0:
+        return 0
+    if np.count_nonzero(side > 0) < ONE_SIDE_SHARE * faces:
+        return -1
+    if np.count_nonzero(side < 0) < ONE_SIDE_SHARE * faces:
+        return 1
+    return 0
+
+
 class Thickness:
     """How thick the chain stands across its plane (t) at places in the plane (s, z), from its points
     seen from either side."""

@@ -61,7 +61,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
-from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments
+from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments, refit_seen_from
 from spare_twin.measure.fragments import adopt_fragments, counted_pieces, pieces
 from spare_twin.measure.joints import (
     MIN_JOINT_EXCESS_LAYERS,
@@ -69,6 +69,7 @@ from spare_twin.measure.joints import (
     chain_sides,
     hidden_joint,
     joint_excess_layers,
+    seen_from_side,
 )
 from spare_twin.measure.level import CombZero
 from spare_twin.measure.medians import grouped_medians
@@ -392,20 +393,26 @@ def measure_layers(
         thickness = Thickness(p[:, [0, 2]], p[:, 1], chain_sides(v[:, 1], cfg.min_side_cosine), cfg.layer_pitch_m)
         if not thickness.holds(2 * cfg.half_thickness_m):
             thickness = None
-    return replace(_chosen_reading(p, readings, print_scale, cfg, thickness), comb_zero=zero)
+    seen_from = 0 if view_dirs is None else seen_from_side(v[:, 1], cfg.min_side_cosine)
+    return replace(_chosen_reading(p, readings, print_scale, cfg, thickness, seen_from), comb_zero=zero)
 
 
 def _chosen_reading(
-    p: np.ndarray, readings: list, print_scale: float, cfg: LayersConfig, thickness: Thickness | None
+    p: np.ndarray,
+    readings: list,
+    print_scale: float,
+    cfg: LayersConfig,
+    thickness: Thickness | None,
+    seen_from: int = 0,
 ) -> LayerMeasurement:
     """The chain of the reading that read the plates right, where the two readings (`layer_readings`)
     differ."""
     # one plate-centre t for every reading (the comb's, its shear out): their layers' spreads compare
     plate_t_m = readings[0][1] * cfg.layer_pitch_m
-    as_designed = _measure_reading(p, *readings[0], print_scale, cfg, thickness, plate_t_m)
+    as_designed = _measure_reading(p, *readings[0], print_scale, cfg, thickness, plate_t_m, seen_from)
     if len(readings) == 1 or np.array_equal(readings[1][0], readings[0][0]):  # the rig: one reading
         return as_designed
-    followed = _measure_reading(p, *readings[1], print_scale, cfg, thickness, plate_t_m)
+    followed = _measure_reading(p, *readings[1], print_scale, cfg, thickness, plate_t_m, seen_from)
     if followed.n_links is None or as_designed.n_links is None:
         # a reading that did not settle passed through a chain: where it counts as the other reading
         # does and holds the points clearly closer, it places the joints (bench seed 30880, 5 links:
@@ -521,11 +528,14 @@ def _measure_reading(
     cfg: LayersConfig,
     thickness: Thickness | None,
     plate_t_m: np.ndarray,
+    seen_from: int = 0,
 ) -> LayerMeasurement:
     """The chain of points `p` (s, t, z) with one reading of their layers: counted, fitted and
     checked (a top layer that is no link, a plate cut in two by its lean, a link too short to
     print, and where `thickness` sees them, joints no thicker than a plate and a plate as thick as a
     joint: `measure.joints`; a layer whose plate centres `plate_t_m` step along it: `measure.steps`),
+    its lengths and angles refitted without the discs hidden from a capture seen from one side
+    (`seen_from`, `fit.refit_seen_from`),
     or why it is no chain."""
     n, per_layer = count_links(labels, cfg)
     if n is None:
@@ -596,6 +606,8 @@ def _measure_reading(
             p, best_labels_n, best_n, best_x, best_rms, count_links(best_labels_n, cfg)[1], print_scale, plate_t_m
         )
         return LayerMeasurement(None, None, None, per_layer, rms, reason, closest_passed=passed)
+    if seen_from:  # the checks above read the plates that cover every disc: the count stays theirs
+        x = refit_seen_from(layers, n, cfg, x, seen_from)
     return _chain(p, labels_n, n, x, rms, per_layer, print_scale, plate_t_m)
 
 
