@@ -234,3 +234,24 @@ def test_points_on_no_chain_give_no_answer_however_sure_the_network():
     m = LayerMeasurement(None, None, None, (900, 700, 0, 0, 0, 0, 0, 0), 0.016, why)
     answer, source = combined(m, _sure_network(6, 0.99), Estimate.none(f"no chain measured: {why}"))
     assert answer.n_links is None and source is None and why in answer.reason
+
+
+def test_a_measured_chain_longer_than_any_chain_gives_no_answer_however_sure_the_network():
+    """Held-out seed 31176 (1 link, a 120 deg sweep registered from its frames alone): its layers were
+    read as 4 links summing to 5.64 paper units at 9.9 mm RMS, where a chain's sum to at most 3. No
+    answer, though the network is sure; the same count summing to 3 stands."""
+    from types import SimpleNamespace
+
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.abstain import measurement_estimate
+    from spare_twin.predict.combine import combined
+
+    obs = SimpleNamespace(reason=None, arc_deg=120.0)
+    lengths = np.array([1.15, 0.93, 1.14, 0.98, 1.44])
+    m = LayerMeasurement(4, lengths, np.zeros(4), (979, 507, 423, 1284, 307, 0, 0, 0), 0.0099)
+    measurement = measurement_estimate(obs, m)
+    assert measurement.n_links is None and "sum to 5.64 paper units" in measurement.reason
+    answer, source = combined(m, _sure_network(1, 0.99), measurement)
+    assert answer.n_links is None and source is None and "5.64" in answer.reason
+    within = LayerMeasurement(4, lengths * 3.0 / lengths.sum(), np.zeros(4), m.points_per_layer, 0.0099)
+    assert measurement_estimate(obs, within).n_links == 4
