@@ -110,7 +110,6 @@ def interrupt_pool(argv: list[str], cwd: Path, env: dict | None = None, workers_
     """Run `argv`, send SIGINT to its whole process group (a terminal's Ctrl-C) once its pool of
     `workers_wanted` spawned workers is up, and return (exit code, stderr) after checking that no
     worker outlived it."""
-    import subprocess
     import time
 
     def children(pid: int) -> list[int]:
