@@ -2,13 +2,15 @@
 
 `observe_views` goes through the same `observe.points` and `observe.profile` code as the training
 samples (`spare_twin.nets.profile_samples`), whatever made the views (a rig, a hand-held sweep, a
-live stream; `observe.views` reads them from a recording folder). `find_chain` picks, of the things
-standing on the table, the one that is a chain. Nothing reads an object configuration or ground truth.
+live stream; `observe.views` reads them from a recording folder). `chains_on_table` lists, of the
+things standing on the table, those that are a chain as far as their profile tells. Nothing reads an
+object configuration or ground truth.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -44,6 +46,30 @@ class ChainObservation:
         return self.object.T_world_table @ self.profile.T_table_profile
 
 
+def chains_on_table(
+    views: list[PosedView],
+    print_scale: float,
+    points_cfg: PointsConfig = PointsConfig(),
+    profile_cfg: ProfileConfig = ProfileConfig(),
+    max_candidates: int = 6,
+) -> Iterator[tuple[ObjectPoints, ChainProfile]]:
+    """(object, profile) of each thing on the table, best first (`object_candidates`, the first
+    `max_candidates`), that is a chain as far as its profile tells (`chain_profile`); where none is,
+    the first alone, with its reason. Lazily: a caller that takes the first profiles no more. A box of
+    clutter beside a thin chain holds more points than the chain: where its profile gives it away it is
+    passed over here; where not, the measurement tells (`spare_twin.measure.chain`)."""
+    first = None
+    for obj in object_candidates(views, points_cfg)[:max_candidates]:
+        profile = chain_profile(obj, print_scale, profile_cfg)
+        if profile.reason is None:
+            first = False
+            yield obj, profile
+        elif first is None:
+            first = (obj, profile)
+    if first:
+        yield first
+
+
 def find_chain(
     views: list[PosedView],
     print_scale: float,
@@ -51,17 +77,30 @@ def find_chain(
     profile_cfg: ProfileConfig = ProfileConfig(),
     max_candidates: int = 6,
 ) -> tuple[ObjectPoints, ChainProfile]:
-    """(object, profile) of the first thing on the table, best first, that is a chain
-    (`object_candidates`, `chain_profile`); when none is, the first with its reason. A box of
-    clutter beside a thin chain holds more points than the chain: it is passed over, not measured."""
-    candidates = object_candidates(views, points_cfg)[:max_candidates]
-    first = None
-    for obj in candidates:
-        profile = chain_profile(obj, print_scale, profile_cfg)
-        if profile.reason is None:
-            return obj, profile
-        first = first or (obj, profile)
-    return first
+    """The first of `chains_on_table`."""
+    return next(chains_on_table(views, print_scale, points_cfg, profile_cfg, max_candidates))
+
+
+def observations(
+    views: list[PosedView],
+    source: str,
+    registration_s: float,
+    print_scale: float,
+    points_cfg: PointsConfig = PointsConfig(),
+    profile_cfg: ProfileConfig = ProfileConfig(),
+) -> Iterator[ChainObservation]:
+    """The observation of each of `chains_on_table`, best first, lazily; each timed from the start
+    (its "observation" seconds include those of the things before it); `registration_s`: the seconds
+    already spent placing the views."""
+    t0 = time.perf_counter()
+    for obj, profile in chains_on_table(views, print_scale, points_cfg, profile_cfg):
+        timings = {"registration": round(registration_s, 3), "observation": round(time.perf_counter() - t0, 3)}
+        seen = ChainObservation(obj, profile, source, len(views), timings)
+        if profile.reason is not None:
+            yield seen
+        else:
+            yield replace(seen, arc_deg=arc_round_deg(views, seen.T_world_profile))
+        t0 = time.perf_counter() - timings["observation"]  # the caller's time between is not ours
 
 
 def observe_views(
@@ -72,15 +111,8 @@ def observe_views(
     points_cfg: PointsConfig = PointsConfig(),
     profile_cfg: ProfileConfig = ProfileConfig(),
 ) -> ChainObservation:
-    """The chain's observation in posed views (`find_chain`), timed; `registration_s`: the seconds
-    already spent placing the views."""
-    t0 = time.perf_counter()
-    obj, profile = find_chain(views, print_scale, points_cfg, profile_cfg)
-    timings = {"registration": round(registration_s, 3), "observation": round(time.perf_counter() - t0, 3)}
-    seen = ChainObservation(obj, profile, source, len(views), timings)
-    if profile.reason is not None:
-        return seen
-    return replace(seen, arc_deg=arc_round_deg(views, seen.T_world_profile))
+    """The chain's observation in posed views: the first of `observations`."""
+    return next(observations(views, source, registration_s, print_scale, points_cfg, profile_cfg))
 
 
 def arc_round_deg(views: list[PosedView], T_world_axis: np.ndarray) -> float:

@@ -130,6 +130,17 @@ class ObjectPoints:
     fine_view_dirs: np.ndarray | None = None
     """float64 (M, 3) table frame: `view_dirs` of `fine_points_m`."""
 
+    @property
+    def off_aim_m(self) -> float:
+        """How far the object stands from where the cameras look: its points' median, horizontally."""
+        return off_aim_m(self.points_m)
+
+
+def off_aim_m(points_table_m: np.ndarray) -> float:
+    """Horizontal distance (metres) of the median of points in the table frame from its origin, below
+    where the cameras look."""
+    return float(np.linalg.norm(np.median(points_table_m[:, :2], axis=0)))
+
 
 def backproject(depth_m: np.ndarray, K: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
     """(N, 3) float64 camera-frame points (OpenCV axes, metres) of the pixels with depth (and `mask`)."""
@@ -405,8 +416,7 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
         members = idx[point_label == lab]
         if local[members, 2].min() > cfg.max_base_height_m:
             continue  # floating: not standing on the table
-        dist = np.linalg.norm(np.median(local[members, :2], axis=0))
-        scored.append((-len(members) / (1.0 + dist / 0.1), lab, members))
+        scored.append((-len(members) / (1.0 + off_aim_m(local[members]) / 0.1), lab, members))
     if not scored:
         return nothing
     # each fine point goes with the object it lies within a coarse voxel of (one query for all:
