@@ -602,13 +602,24 @@ def _measure_reading(
             f"{1000 * best_rms:.1f} mm (RMS) to {n} at {1000 * rms:.1f} mm"
         )
         best_labels_n = np.frombuffer(best_labels, labels_n.dtype)
+        best_x = _refit_seen_from(p, best_labels_n, best_n, cfg, best_x, seen_from)
         passed = _chain(
             p, best_labels_n, best_n, best_x, best_rms, count_links(best_labels_n, cfg)[1], print_scale, plate_t_m
         )
         return LayerMeasurement(None, None, None, per_layer, rms, reason, closest_passed=passed)
-    if seen_from:  # the checks above read the plates that cover every disc: the count stays theirs
-        x = refit_seen_from(layers, n, cfg, x, seen_from)
+    x = _refit_seen_from(p, labels_n, n, cfg, x, seen_from)
     return _chain(p, labels_n, n, x, rms, per_layer, print_scale, plate_t_m)
+
+
+def _refit_seen_from(
+    p: np.ndarray, labels_n: np.ndarray, n: int, cfg: LayersConfig, x: np.ndarray, seen_from: int
+) -> np.ndarray:
+    """The settled chain `x` of a reading refitted where the capture saw it from one side (`seen_from`:
+    `fit.refit_seen_from`), else `x`. The checks read the plates that cover every disc, so the count
+    stays theirs; only lengths and angles come from the refit."""
+    if not seen_from:
+        return x
+    return refit_seen_from([p[labels_n == k][:, [0, 2]] for k in range(n + 1)], n, cfg, x, seen_from)
 
 
 def _chain(
