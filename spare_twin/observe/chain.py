@@ -58,16 +58,16 @@ def chains_on_table(
     the first alone, with its reason. Lazily: a caller that takes the first profiles no more. A box of
     clutter beside a thin chain holds more points than the chain: where its profile gives it away it is
     passed over here; where not, the measurement tells (`spare_twin.measure.chain`)."""
-    first = None
+    any_chain, first_refused = False, None
     for obj in object_candidates(views, points_cfg)[:max_candidates]:
         profile = chain_profile(obj, print_scale, profile_cfg)
         if profile.reason is None:
-            first = False
+            any_chain = True
             yield obj, profile
-        elif first is None:
-            first = (obj, profile)
-    if first:
-        yield first
+        elif first_refused is None:
+            first_refused = (obj, profile)
+    if not any_chain and first_refused is not None:
+        yield first_refused
 
 
 def find_chain(
