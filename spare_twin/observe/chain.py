@@ -70,15 +70,9 @@ def chains_on_table(
         yield first_refused
 
 
-def find_chain(
-    views: list[PosedView],
-    print_scale: float,
-    points_cfg: PointsConfig = PointsConfig(),
-    profile_cfg: ProfileConfig = ProfileConfig(),
-    max_candidates: int = 6,
-) -> tuple[ObjectPoints, ChainProfile]:
-    """The first of `chains_on_table`."""
-    return next(chains_on_table(views, print_scale, points_cfg, profile_cfg, max_candidates))
+def find_chain(views: list[PosedView], print_scale: float, *args, **kwargs) -> tuple[ObjectPoints, ChainProfile]:
+    """The first of `chains_on_table` (its arguments)."""
+    return next(chains_on_table(views, print_scale, *args, **kwargs))
 
 
 def observations(
@@ -103,16 +97,9 @@ def observations(
         t0 = time.perf_counter() - timings["observation"]  # the caller's time between is not ours
 
 
-def observe_views(
-    views: list[PosedView],
-    source: str,
-    registration_s: float,
-    print_scale: float,
-    points_cfg: PointsConfig = PointsConfig(),
-    profile_cfg: ProfileConfig = ProfileConfig(),
-) -> ChainObservation:
-    """The chain's observation in posed views: the first of `observations`."""
-    return next(observations(views, source, registration_s, print_scale, points_cfg, profile_cfg))
+def observe_views(views: list[PosedView], source: str, registration_s: float, *args, **kwargs) -> ChainObservation:
+    """The chain's observation in posed views: the first of `observations` (its arguments)."""
+    return next(observations(views, source, registration_s, *args, **kwargs))
 
 
 def arc_round_deg(views: list[PosedView], T_world_axis: np.ndarray) -> float:
