@@ -156,8 +156,8 @@ def _measured(
     stands nearer where the cameras look and measures as a chain. A cylinder or a box of clutter seen
     from one side can pass the profile's checks and outrank the chain by its points (bench seeds
     31126, 31149 and 31180: one 18-23 cm out, measured 15-18 mm RMS off any chain; the chain behind it,
-    within 3 cm of the aim, 0.2-0.4 mm). Only nearer: clutter measures as a chain of 1-3 links often
-    enough (6 of 8 such things on seeds 30822-30845 without effects, 1.5-7 mm RMS) that a chain the
+    within 3 cm of the aim, 0.2-0.4 mm). Only nearer: clutter measures as a chain of 1-4 links often
+    enough (13 of the 25 such things on 48 tables of seeds 30822-30845, 1.5-8 mm RMS) that a chain the
     capture is aimed at is never passed over for it. The source names a thing passed over."""
     first, measurement_s, tried = None, 0.0, 0
     for seen in observations(views, source, registration_s, print_scale, profile_cfg=geometry.profile):
