@@ -133,10 +133,10 @@ class ObjectPoints:
     @property
     def off_aim_m(self) -> float:
         """How far the object stands from where the cameras look: its points' median, horizontally."""
-        return off_aim_m(self.points_m)
+        return median_off_aim_m(self.points_m)
 
 
-def off_aim_m(points_table_m: np.ndarray) -> float:
+def median_off_aim_m(points_table_m: np.ndarray) -> float:
     """Horizontal distance (metres) of the median of points in the table frame from its origin, below
     where the cameras look."""
     return float(np.linalg.norm(np.median(points_table_m[:, :2], axis=0)))
@@ -416,7 +416,7 @@ def object_candidates(views: list[PosedView], cfg: PointsConfig = PointsConfig()
         members = idx[point_label == lab]
         if local[members, 2].min() > cfg.max_base_height_m:
             continue  # floating: not standing on the table
-        scored.append((-len(members) / (1.0 + off_aim_m(local[members]) / 0.1), lab, members))
+        scored.append((-len(members) / (1.0 + median_off_aim_m(local[members]) / 0.1), lab, members))
     if not scored:
         return nothing
     # each fine point goes with the object it lies within a coarse voxel of (one query for all:
