@@ -38,11 +38,13 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    lean (`_is_cut`) and a link between joints too short to print (`_unprintable_link`) are merged into
    the layer below. Where the chain was seen from both sides of its plane, a joint is told by its
    thickness (`measure.joints`: at a pin two plates overlap, a layer thicker than one plate; a cut
-   plate is one plate thick there), and a layer as thick as a joint somewhere along it holds two
-   links and is split there first; elsewhere a cut plate is told by its plate centres' step where
-   the two layers meet (`_cut_plate`: a fraction of a layer, not a joint's whole layer), and a layer
-   whose plate centres step by half a pitch or more along it is split there (`measure.steps`: a
-   Kinect's smoothing ran a straight run of short links into one layer).
+   plate is one plate thick there; read where the two layers meet if a layer read as a cut sits a
+   whole layer above its parent, `MIN_LINK_RISE_LAYERS`: the joint was fitted off its pin), and a
+   layer as thick as a joint somewhere along it holds two links and is split there first; elsewhere
+   a cut plate is told by its plate centres' step where the two layers meet (`_cut_plate`: a
+   fraction of a layer, not a joint's whole layer), and a layer whose plate centres step by half a
+   pitch or more along it is split there (`measure.steps`: a Kinect's smoothing ran a straight run of short links into
+   one layer).
 5. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
    to measure, and the measurement says why (a capture blurred by views out of register); so is a
    reading whose checks end on a chain far looser than the closest one they passed through
@@ -573,14 +575,17 @@ def _measure_reading(
                 n += 1
                 continue
         excess = np.full(n, np.nan) if thickness is None else joint_excess_layers(thickness, starts)
-        if n > 1 and (_top_layer_is_stray(x, layers, centres[n], n, cfg) or _is_cut(layers, centres, excess, n)):
+        if n > 1 and (
+            _top_layer_is_stray(x, layers, centres[n], n, cfg)
+            or _is_cut(layers, centres, excess, n, thickness, cfg.half_width_m)
+        ):
             n -= 1
             labels = np.minimum(labels, n)  # as the fit reads them: a later split renumbers what is there
             continue
         # the top layer settled first: a tilted plate cut in two lower down reads as a link of its own,
         # often one too short to print
         cut = _unprintable_link(x, n, cfg) or next(
-            (k for k in range(2, n) if _is_cut(layers, centres, excess, k)), None
+            (k for k in range(2, n) if _is_cut(layers, centres, excess, k, thickness, cfg.half_width_m)), None
         )
         if cut is None:
             break
@@ -686,15 +691,71 @@ def _top_layer_is_stray(
 #: by less than this many layers run on from the parent's: one plate tilted out of its layer.
 MAX_TILT_STEP_LAYERS = 0.35
 TILT_CONTACT_M = 0.009
+#: Where a joint reads no thicker than a plate but its layer's plate centres sit this many layers or
+#: more above its parent's (median against median), and the layer is at least half a plate wide, the
+#: thickness is read again where the two layers meet (their points within `MEETING_M` of each
+#: other), not at the fitted joint (`_is_cut`). A fit that puts a joint off its pin reads a plate's
+#: thickness there: bench seed 31437's rig view (a 21 mm link before it; the layer 0.99 up; 0.93 layers
+#: thicker than a plate where the layers meet) merged a link as a cut, 4 links read as 3, and 31427's
+#: real capture (1.08 up, 3.3 thicker) 6 as 5. A cut plate's far end can sit most of a layer up where
+#: leans add up along the chain, but where it meets its near end it is one plate thick (31424 real:
+#: 0.82-0.86 up, -0.04 to -0.06 there, kept as a cut). A sliver is no layer to read (31414's clean
+#: render: 38 points, 2.8 mm across, a whole layer above the last link).
+MIN_LINK_RISE_LAYERS = 0.75
+MEETING_M = 0.002
+MIN_MEETING_EXCESS_LAYERS = 0.75
 
 
-def _is_cut(layers: list[np.ndarray], centres: list[np.ndarray], joint_excess: np.ndarray, k: int) -> bool:
+def _is_cut(
+    layers: list[np.ndarray],
+    centres: list[np.ndarray],
+    joint_excess: np.ndarray,
+    k: int,
+    thickness: Thickness | None,
+    half_width_m: float,
+) -> bool:
     """Whether layer k is its parent's plate cut in two, not a link: where joint k was seen from both
     sides, by its thickness (`measure.joints`: a pin's overlap is a layer thicker than a plate, a cut
-    none), elsewhere by the plate centres' step where the two layers meet (`_cut_plate`)."""
-    if np.isfinite(joint_excess[k - 1]):
-        return bool(joint_excess[k - 1] < MIN_JOINT_EXCESS_LAYERS)
-    return _cut_plate(layers, centres, k)
+    none), read where the two layers meet if the layer sits a whole layer up (`MIN_LINK_RISE_LAYERS`);
+    elsewhere by the plate centres' step where the two layers meet (`_cut_plate`)."""
+    excess = joint_excess[k - 1]
+    if not np.isfinite(excess) or thickness is None:
+        return _cut_plate(layers, centres, k)
+    if (
+        excess < MIN_JOINT_EXCESS_LAYERS
+        and _rise_layers(centres, k) >= MIN_LINK_RISE_LAYERS
+        and _width_m(layers[k]) >= half_width_m
+    ):
+        return bool(_meeting_excess_layers(thickness, layers[k - 1], layers[k], excess) < MIN_MEETING_EXCESS_LAYERS)
+    return bool(excess < MIN_JOINT_EXCESS_LAYERS)
+
+
+def _rise_layers(centres: list[np.ndarray], k: int) -> float:
+    """How far (in layers) layer k's plate centres sit above its parent's, median against median."""
+    if min(len(centres[k]), len(centres[k - 1])) == 0:
+        return 0.0
+    return float(np.median(centres[k]) - np.median(centres[k - 1]))
+
+
+def _width_m(sz_m: np.ndarray) -> float:
+    """The extent of points (N, 2) in the plane across their main direction: a plate's width or more
+    where a plate was seen, a sliver's thickness where a sliver was."""
+    if len(sz_m) < 3:
+        return 0.0
+    centred = sz_m - sz_m.mean(0)
+    across = np.linalg.svd(centred, full_matrices=False)[2][1]
+    return float(np.ptp(centred @ across))
+
+
+def _meeting_excess_layers(thickness: Thickness, parent: np.ndarray, top: np.ndarray, otherwise: float) -> float:
+    """The chain's excess thickness (layers, `Thickness.excess_layers`) where `top`'s points meet
+    `parent`'s, their median; `otherwise` where they do not meet or it is unseen there."""
+    if len(parent) == 0:
+        return otherwise
+    places = top[cKDTree(parent).query(top, distance_upper_bound=MEETING_M)[0] < MEETING_M]
+    excess = thickness.excess_layers(places) if len(places) else np.zeros(0)
+    excess = excess[np.isfinite(excess)]
+    return float(np.median(excess)) if len(excess) else otherwise
 
 
 def _cut_plate(layers: list[np.ndarray], centres: list[np.ndarray], k: int) -> bool:
