@@ -195,8 +195,8 @@ def test_the_rendered_chain_is_measured(rig_rec):
 def test_a_layer_a_whole_layer_above_its_parent_is_a_link_however_thin_its_joint_reads(tmp_path, monkeypatch):
     """Bench seed 31437's rig view (round 31398-31445, row 39; 4 links, the third 21 mm): the fit put
     joint 4 off its pin, so the joint read no thicker than a plate, and layer 4, its plate centres a
-    whole layer above layer 3's and a whole layer up where the two meet, was merged as layer 3's
-    plate cut in two: 3 links. Now the step where they meet decides (`MIN_LINK_RISE_LAYERS`)."""
+    whole layer above layer 3's, was merged as layer 3's plate cut in two: 3 links. Read where the
+    two layers meet, the joint stands a layer thicker than a plate (`MIN_LINK_RISE_LAYERS`)."""
     from spare_twin.bench import capture
     from spare_twin.bench.settings import BenchConfig, capture_settings
 
@@ -239,7 +239,10 @@ def test_a_layer_a_whole_layer_up_on_a_thin_joint_is_judged_by_the_thickness_whe
     top_centres = np.full(len(top), 0.85 if case == "leaning far end" else 1.0)
     layers, centres = [sz[:0], bottom, top], [np.zeros(0), bottom_centres, top_centres]
     thin = np.array([np.nan, 0.0])  # joint 2, as fitted, no thicker than a plate
-    assert L._is_cut(layers, centres, thin, 2, thickness, HALF_WIDTH_M) is cut
+    kept = []
+    assert L._is_cut(layers, centres, thin, 2, thickness, HALF_WIDTH_M, kept) is cut
+    assert kept == ([] if cut else [2])
+    assert L._is_cut(layers, centres, thin, 2, thickness, HALF_WIDTH_M) is True  # not read again: a cut
     # without a thickness (seen from one side) the step where the layers meet decides, as before
     assert L._is_cut(layers, centres, thin, 2, None, HALF_WIDTH_M) is L._cut_plate(layers, centres, 2)
 
