@@ -522,27 +522,19 @@ def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int
     return extra
 
 
-def _measure_reading_both(
-    p: np.ndarray,
-    labels: np.ndarray,
-    centre_layers: np.ndarray,
-    print_scale: float,
-    cfg: LayersConfig,
-    thickness: Thickness | None,
-    plate_t_m: np.ndarray,
-    seen_from: int = 0,
-) -> LayerMeasurement:
-    """`_measure_reading`, where a layer a whole layer up on a joint fitted one plate thick is read
-    where it meets its parent (`_is_cut`, `MIN_LINK_RISE_LAYERS`). Where that kept a layer, the
-    reading is measured without it too, and the other count stands where both count, else the closer
-    fit: a layer kept whose split from its parent was misread fits looser than merging it and
-    splitting at the hidden joint (the rig's test split, instances 450, 508, 1647, 2113, 2758: the
-    same count, RMS 1.0-6.3 mm kept against 0.9-6.0 mm merged, lengths further off)."""
+def _measure_reading_both(*reading) -> LayerMeasurement:
+    """`_measure_reading` of the same arguments (`reading`), where a layer a whole layer up on a joint
+    fitted one plate thick is read where it meets its parent (`_is_cut`, `MIN_LINK_RISE_LAYERS`).
+    Where that kept a layer, the reading is measured without it too, and the other count stands
+    where both count, else the closer fit: a layer kept whose split from its parent was misread fits
+    looser than merging it and splitting at the hidden joint (the rig's test split, instances 450,
+    508, 1647, 2113, 2758: the same count, RMS 1.0-6.3 mm kept against 0.9-6.0 mm merged, lengths
+    further off)."""
     kept: list[int] = []
-    read_again = _measure_reading(p, labels, centre_layers, print_scale, cfg, thickness, plate_t_m, seen_from, kept)
+    read_again = _measure_reading(*reading, kept=kept)
     if not kept:
         return read_again
-    plain = _measure_reading(p, labels, centre_layers, print_scale, cfg, thickness, plate_t_m, seen_from)
+    plain = _measure_reading(*reading)
     if plain.n_links is None or read_again.n_links is None:
         return plain
     if read_again.n_links != plain.n_links:
