@@ -43,8 +43,8 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    layer as thick as a joint somewhere along it holds two links and is split there first; elsewhere
    a cut plate is told by its plate centres' step where the two layers meet (`_cut_plate`: a
    fraction of a layer, not a joint's whole layer), and a layer whose plate centres step by half a
-   pitch or more along it is split there (`measure.steps`: a Kinect's smoothing ran a straight run of short links into
-   one layer).
+   pitch or more along it is split there (`measure.steps`: a Kinect's smoothing ran a straight run
+   of short links into one layer).
 5. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
    to measure, and the measurement says why (a capture blurred by views out of register); so is a
    reading whose checks end on a chain far looser than the closest one they passed through
@@ -525,11 +525,11 @@ def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int
 def _measure_reading_both(*reading) -> LayerMeasurement:
     """`_measure_reading` of the same arguments (`reading`), where a layer a whole layer up on a joint
     fitted one plate thick is read where it meets its parent (`_is_cut`, `MIN_LINK_RISE_LAYERS`).
-    Where that kept a layer, the reading is measured without it too, and the other count stands
-    where both count, else the closer fit: a layer kept whose split from its parent was misread fits
-    looser than merging it and splitting at the hidden joint (the rig's test split, instances 450,
-    508, 1647, 2113, 2758: the same count, RMS 1.0-6.3 mm kept against 0.9-6.0 mm merged, lengths
-    further off)."""
+    Where that kept a layer, the reading is measured without it too: where both count and count
+    otherwise, the count with the layer kept stands; with one count, the closer fit. A layer kept
+    whose split from its parent was misread fits looser than merging it and splitting at the hidden
+    joint (the rig's test split, instances 450, 508, 1647, 2113, 2758: the same count, RMS 1.0-6.3
+    mm kept against 0.9-6.0 mm merged, lengths further off)."""
     kept: list[int] = []
     read_again = _measure_reading(*reading, kept=kept)
     if not kept:
