@@ -531,7 +531,7 @@ def _measure_reading_both(*reading) -> LayerMeasurement:
     joint (the rig's test split, instances 450, 508, 1647, 2113, 2758: the same count, RMS 1.0-6.3
     mm kept against 0.9-6.0 mm merged, lengths further off)."""
     kept: list[int] = []
-    read_again = _measure_reading(*reading, kept=kept)
+    read_again = _measure_reading(*reading, kept)  # `reading` ends with `seen_from`
     if not kept:
         return read_again
     plain = _measure_reading(*reading)
