@@ -292,3 +292,27 @@ def test_a_measured_chain_longer_than_any_chain_gives_no_answer_however_sure_the
     assert answer.n_links is None and source is None and "5.64" in answer.reason
     within = LayerMeasurement(4, lengths * 3.0 / lengths.sum(), np.zeros(4), m.points_per_layer, 0.0099)
     assert measurement_estimate(obs, within).n_links == 4
+
+
+def test_a_network_sure_of_a_link_more_is_measured_at_its_count(rig_rec, tmp_path, capsys):
+    """Sure of 3 where the layers count 2, the chain is measured again at 3 links
+    (`measure.layers._at_count`): the count is the network's, the lengths and angles those of the
+    measured 3-link chain, each field labelled so; the network's and the measurement's own estimates
+    beside it. Sure of 5 on the same 2 links, no split holds a chain of 5 and the network's own
+    estimate stands (`test_a_network_sure_of_another_count_overrules_the_measurement`)."""
+    from spare_twin.predict.combine import MEASURED_AT_NETWORK_COUNT
+
+    sure_of_three = _count_head(tmp_path, "three.pt", [0, 0, 20.0, 0, 0, 0])
+    combined = _predict(rig_rec.root, capsys, "--model", str(sure_of_three))
+    assert combined["n_links"] == 3 and combined["measurement"]["n_links"] == 2
+    assert combined["source"] == {
+        "n_links": "network",
+        "link_lengths_pu": MEASURED_AT_NETWORK_COUNT,
+        "joint_angles_rad": MEASURED_AT_NETWORK_COUNT,
+    }
+    lengths = combined["link_lengths_pu"]
+    assert len(lengths) == 4 and lengths != combined["network"]["link_lengths_pu"]
+    # the measured chain is still there, one of its links split in two (link 1: 0.80 as 0.35 + 0.45)
+    base, link_1, link_2 = combined["measurement"]["link_lengths_pu"]
+    assert lengths[0] == pytest.approx(base, abs=0.005) and lengths[3] == pytest.approx(link_2, abs=0.005)
+    assert lengths[1] + lengths[2] == pytest.approx(link_1, abs=0.01) and min(lengths[1:3]) > 0.25

@@ -177,6 +177,15 @@ def _measured(
     return dataclasses.replace(found, timings_s={**found.timings_s, "measurement": round(measurement_s, 3)}), measured
 
 
+def measured_at_count(
+    seen: ChainObservation, print_scale: float, count: int, parts: PartDims = PartDims()
+) -> LayerMeasurement:
+    """The chain of an observation that `measure_views` measured with fewer links, measured again at
+    `count` links (`measure.layers.measure_layers`'s `at_count`), held to layers told apart."""
+    layers_cfg = LayersConfig.for_parts(parts)
+    return layers_told_apart(measure_profile(seen.object, seen.profile, print_scale, layers_cfg, count), layers_cfg)
+
+
 def _too_short_an_arc(seen: ChainObservation, min_arc_deg: float) -> bool:
     return seen.arc_deg is not None and seen.arc_deg < min_arc_deg
 

@@ -51,8 +51,15 @@ def _line(sums: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return np.maximum(stt - st * st / count - slope * cov, 0.0), intercept, slope
 
 
-def _step(u: np.ndarray, t: np.ndarray, pitch_m: float) -> float | None:
-    """Where along u (sorted) the points' t step up by a joint's (`stepped_layer`), or None."""
+def _step(
+    u: np.ndarray,
+    t: np.ndarray,
+    pitch_m: float,
+    min_step_layers: float = MIN_STEP_LAYERS,
+    max_share: float = MAX_RESIDUAL_SHARE,
+) -> tuple[float, float] | None:
+    """(where along u (sorted), share) the points' t step up by at least `min_step_layers` pitches with
+    two lines holding them `share` as loosely as one, at most `max_share` (the least share), or None."""
     prefix = np.concatenate([np.zeros((1, 6)), np.cumsum(np.stack([np.ones_like(u), u, t, u * u, u * t, t * t], 1), 0)])
     at = np.arange(u[0] + STEP_GAP_M, u[-1] - STEP_GAP_M, STEP_SPACING_M)
     before = np.searchsorted(u, at - STEP_GAP_M)  # the first line: points 0 .. before - 1
@@ -67,11 +74,12 @@ def _step(u: np.ndarray, t: np.ndarray, pitch_m: float) -> float | None:
     one_line = _line(first + second)[0]
     step = (a_2 + b_2 * at) - (a_1 + b_1 * at)
     two_lines = squares_1 + squares_2
-    stepped = (step >= MIN_STEP_LAYERS * pitch_m) & (two_lines <= MAX_RESIDUAL_SHARE * one_line)
+    stepped = (step >= min_step_layers * pitch_m) & (two_lines <= max_share * one_line)
     if not stepped.any():
         return None
     share = two_lines / np.maximum(one_line, 1e-18)
-    return float(at[np.flatnonzero(stepped)[np.argmin(share[stepped])]])
+    best = np.flatnonzero(stepped)[np.argmin(share[stepped])]
+    return float(at[best]), float(share[best])
 
 
 def stepped_layer(
@@ -85,6 +93,23 @@ def stepped_layer(
     step up by at least `MIN_STEP_LAYERS` along its fitted plate (from `starts[j]` to `ends[j]`,
     `measure.fit.plate_segments`; clear of its ends), where two lines on either side of the step hold
     them at most `MAX_RESIDUAL_SHARE` as loosely as one; None where none does."""
+    for j, at, _ in layer_steps(layers_sz_m, layers_t_m, starts, ends, pitch_m, MIN_STEP_LAYERS, MAX_RESIDUAL_SHARE):
+        return j, at
+    return None
+
+
+def layer_steps(
+    layers_sz_m: list[np.ndarray],
+    layers_t_m: list[np.ndarray],
+    starts: np.ndarray,
+    ends: np.ndarray,
+    pitch_m: float,
+    min_step_layers: float = 0.0,
+    max_share: float = 1.0,
+):
+    """(layer j, place (2,) in the plane, share) of each layer 1..n's best step up (`_step`), in layer
+    order: by default whatever its height, where another estimator is sure the chain has a link more
+    than its layers hold (`measure.layers`'s `at_count`: each is a place the joint may hide)."""
     for j in range(1, len(layers_sz_m)):
         plate = ends[j] - starts[j]
         length = float(np.linalg.norm(plate))
@@ -95,7 +120,6 @@ def stepped_layer(
         order = np.argsort(u[inside], kind="stable")
         if len(order) < 2 * MIN_SIDE_POINTS:
             continue
-        at = _step(u[inside][order], layers_t_m[j][inside][order], pitch_m)
-        if at is not None:
-            return j, starts[j] + at * plate / length
-    return None
+        step = _step(u[inside][order], layers_t_m[j][inside][order], pitch_m, min_step_layers, max_share)
+        if step is not None:
+            yield j, starts[j] + step[0] * plate / length, step[1]

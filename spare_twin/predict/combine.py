@@ -7,7 +7,20 @@ of more links (below). Measured on the held-out seed-1 test split and on hand-he
 (docs/observe.md): the network alone counted 0.80 of them right, the measurement 0.97..1.00.
 `predict` answers with `combined`; `evaluate`'s batches with `overrule`, the same choice without
 `predict`'s abstentions (the rig's test split is scored on every instance), so its figures are
-those of `predict` wherever `predict` answers.
+those of `predict` wherever `predict` answers, but for one thing: where the network's count stands
+over a lower measured one, `predict` measures the chain again at the network's count (below) and
+`evaluate`, whose batches carry the measurement's slots and not the points, keeps the network's
+lengths (3 of the rig's 3,000 test instances, 1177, 1178 and 1180: `predict`'s E_L there 0.031,
+0.414 and 0.009 against the network's 0.060, 0.084 and 0.074).
+
+Since release 0.6.36 the lengths and angles where the network's count stands over the measured one
+are those of the chain measured again at that count (`measure.layers` with `at_count`: a layer
+split where its plate centres step up the likeliest, `MEASURED_AT_NETWORK_COUNT` in `source`), not
+the network's: on the eight such captures of the development recordings (bench seeds 30870-31493,
+every side, and the rig's test split) the network's lengths were 0.06-0.08 paper units squared off
+(E_L) in the rig and 0.006-0.048 on the bench; measured again, 0.006-0.031 on six of them, 0.008 for
+0.006 on one (31277's clean render) and 0.414 on the rig's instance 1178, whose measured chain was
+44 mm too long before any split.
 
 Releases 0.6.6-0.6.11 gave no answer where the two counted otherwise and the measured chain fitted
 its points looser than 1.5 mm RMS (a blurred capture, where either might be the one that is right).
@@ -62,19 +75,32 @@ from spare_twin.measure.layers import LayerMeasurement
 from spare_twin.measure.slots import LENGTH_SLOTS, measurement_slots
 from spare_twin.predict.estimate import FIELDS, Estimate, NetworkEvidence
 
-__all__ = ["LENGTH_SLOTS", "NETWORK_OVERRULES_P", "combined", "measurement_slots", "overrule"]
+__all__ = [
+    "LENGTH_SLOTS",
+    "MEASURED_AT_NETWORK_COUNT",
+    "NETWORK_OVERRULES_P",
+    "combined",
+    "measurement_slots",
+    "network_count_over",
+    "overrule",
+]
 
 #: The network's count stands against a measured count it exceeds, or where the measurement cannot
 #: tell its layers apart, when its most probable count has at least this probability; sure of fewer
 #: links than were measured, it leaves no answer (module docstring).
 NETWORK_OVERRULES_P = 0.95
+#: The source of the lengths and angles of a chain measured again at the count the network is sure
+#: of, over the measurement's lower one (`combined`).
+MEASURED_AT_NETWORK_COUNT = "measurement at the network's count"
 
 
 def overrule(res: dict, slots: dict) -> dict:
     """`models.decode`'s output with each row's count, lengths and angles replaced by the measured
     ones where the measurement found a chain and the network is not sure of more links (`slots`:
     `measurement_slots`, batched as tensors). Where `predict` would answer nothing because the
-    network is sure of fewer links, the measured count stands: every instance is scored."""
+    network is sure of fewer links, the measured count stands: every instance is scored. Where the
+    network's count stands, its lengths and angles stay (`predict` measures the points again there;
+    the slots hold no points)."""
     measured = torch.as_tensor(slots["measured_n"]).reshape(-1).to(res["pred_n"].device)
     sure = res["probabilities"].max(1).values >= NETWORK_OVERRULES_P
     found = (measured > 0) & ~(sure & (res["pred_n"] > measured))
@@ -88,19 +114,36 @@ def overrule(res: dict, slots: dict) -> dict:
     return out
 
 
-def combined(m: LayerMeasurement, network: Estimate, measurement: Estimate) -> tuple[Estimate, dict | None]:
+def network_count_over(m: LayerMeasurement, network: Estimate, measurement: Estimate) -> int | None:
+    """The network's count where it stands over a lower count the measurement found on points that
+    lie on a chain (`combined`): the count the chain is measured again at (`measure.chain.measured_at_count`);
+    else None."""
+    if m.layers_blurred or m.reason is not None or m.n_links is None or measurement.n_links is None:
+        return None
+    return network.n_links if _sure(network) and network.n_links > measurement.n_links else None
+
+
+def combined(
+    m: LayerMeasurement, network: Estimate, measurement: Estimate, at_network_count: Estimate | None = None
+) -> tuple[Estimate, dict | None]:
     """(answer, source) of the profile network's estimate and the measurement `m` of the same points,
     each field labelled with the estimate it came from: the measurement's answer where it found a
-    chain, unless the network is sure of more links (`NETWORK_OVERRULES_P`) or of fewer (then no
-    answer); where the measurement found no chain the network's estimate as it is (its own abstention
-    included), and where it cannot tell the chain's layers apart the network's only where it is sure;
-    where the points lie on no chain there is no answer."""
+    chain, unless the network is sure of more links (`NETWORK_OVERRULES_P`: the network's count, and
+    the lengths and angles of the chain measured again at it, `at_network_count`, where that found
+    one) or of fewer (then no answer); where the measurement found no chain the network's estimate as
+    it is (its own abstention included), and where it cannot tell the chain's layers apart the
+    network's only where it is sure; where the points lie on no chain there is no answer."""
     everything_network = None if network.n_links is None else {f: "network" for f in FIELDS}
     if m.layers_blurred:
         return (network, everything_network) if _sure(network) else (Estimate.none(measurement.reason), None)
     if m.reason is not None or (m.n_links is not None and measurement.n_links is None):
         return Estimate.none(measurement.reason), None  # the points lie on no chain, or too weakly
-    if m.n_links is None or (_sure(network) and network.n_links > measurement.n_links):
+    if network_count_over(m, network, measurement) is not None:
+        if at_network_count is not None and at_network_count.n_links == network.n_links:
+            source = {f: "network" if f == "n_links" else MEASURED_AT_NETWORK_COUNT for f in FIELDS}
+            return replace(at_network_count, evidence=None), source
+        return network, everything_network
+    if m.n_links is None:
         return network, everything_network
     if _sure(network) and network.n_links < measurement.n_links:
         return Estimate.none(_disagreement(network, measurement.n_links)), None

@@ -124,8 +124,9 @@ class Prediction:
     """The estimate `--answer` asked for (its evidence is the estimates' own, under `network` and
     `measurement`)."""
     source: dict[str, str] | None
-    """Per answer field (`FIELDS`), the estimate it came from ("network" or "measurement"). None where
-    there is no answer."""
+    """Per answer field (`FIELDS`), the estimate it came from: "network", "measurement", or "measurement
+    at the network's count" (the chain measured again at a count the network is sure of, more than
+    the layers counted: `predict.combine.MEASURED_AT_NETWORK_COUNT`). None where there is no answer."""
     network: Estimate | None
     """The network's own estimate; None where no network ran (`--answer measurement`, no chain in view)."""
     measurement: Estimate | None

@@ -17,7 +17,7 @@ import numpy as np
 
 from spare_twin.config import DEFAULT_PRINT_SCALE, PartDims
 from spare_twin.errors import SpareTwinError
-from spare_twin.measure.chain import measure_views
+from spare_twin.measure.chain import measure_views, measured_at_count
 from spare_twin.measure.layers import LayerMeasurement
 from spare_twin.measure.level import levelled_image
 from spare_twin.measure.process import MeasureProcess
@@ -28,7 +28,7 @@ from spare_twin.observe.chain import ChainObservation
 from spare_twin.observe.profile import ProfileConfig
 from spare_twin.observe.views import PosedViews
 from spare_twin.predict.abstain import MIN_ARC_DEG, hold_network, measurement_estimate, network_estimate, note_parts
-from spare_twin.predict.combine import combined
+from spare_twin.predict.combine import combined, network_count_over
 from spare_twin.predict.early import check_options, measuring_request, print_scale_or_default
 from spare_twin.predict.estimate import FIELDS, Estimate, Prediction
 from spare_twin.predict.images import predict_images
@@ -178,7 +178,13 @@ def answer_of(
     elif answer == "measurement":
         chosen, source = measurement, _all(measurement, "measurement")
     else:
-        chosen, source = combined(m, network, measurement)
+        at_network_count = None
+        count = network_count_over(m, network, measurement)
+        if count is not None:  # two links the layers ran into one: measured again where they step apart
+            t0 = time.perf_counter()
+            at_network_count = measurement_estimate(obs, measured_at_count(obs, print_scale, count, parts))
+            timings["measurement"] = round(timings.get("measurement", 0.0) + time.perf_counter() - t0, 3)
+        chosen, source = combined(m, network, measurement, at_network_count)
     return Prediction(chosen, source, network, measurement, timings_s=timings, **common)
 
 
