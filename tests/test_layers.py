@@ -207,6 +207,8 @@ def test_a_layer_a_whole_layer_above_its_parent_is_a_link_however_thin_its_joint
     seen = recording_views(Recording.open(capture.draw_sim_rig(obj, tmp_path, c, cfg)))
     assert measure_views(seen, SCALE)[1].n_links == 4
     monkeypatch.setattr(L, "MIN_LINK_RISE_LAYERS", math.inf)  # the joint's thickness alone decides
+    assert measure_views(seen, SCALE)[1].n_links == 4  # but layer 3's points bend off its plate (`measure.bends`)
+    monkeypatch.setattr(L, "bent_layer", lambda *layers: None)
     assert measure_views(seen, SCALE)[1].n_links == 3
 
 

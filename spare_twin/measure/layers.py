@@ -44,7 +44,8 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    a cut plate is told by its plate centres' step where the two layers meet (`_cut_plate`: a
    fraction of a layer, not a joint's whole layer), and a layer whose plate centres step by half a
    pitch or more along it is split there (`measure.steps`: a Kinect's smoothing ran a straight run
-   of short links into one layer).
+   of short links into one layer), and so is a last layer whose points two plates meeting at a bend
+   hold far closer than one (`measure.bends`: a short or dark last link read in its parent's layer).
 5. **no measure**: points that lie centimetres (RMS, `max_rms_m`) off the best chain are no chain
    to measure, and the measurement says why (a capture blurred by views out of register); so is a
    reading whose checks end on a chain far looser than the closest one they passed through
@@ -63,6 +64,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
+from spare_twin.measure.bends import bent_layer
 from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments, refit_seen_from
 from spare_twin.measure.fragments import adopt_fragments, counted_pieces, pieces
 from spare_twin.measure.joints import (
@@ -165,6 +167,9 @@ class LayersConfig:
     """At most this many points are measured (evenly through their fixed order): a 2 mm merge of a
     hand-held capture (`observe.points.PointsConfig.fine_voxel_m`) holds 1,600-2,900 above the socket
     (six development captures), the rig's 96 x 128 views about 1,800."""
+    bends: bool = True
+    """Split a layer whose points bend in the plane where two plates hold them far closer than its one
+    (`measure.bends`)."""
     joint_thickness: bool = True
     """Where the chain was seen from both sides of its plane, read its joints from how thick it stands
     there (`measure.joints`: a pin's overlap is two plates thick) before the plate centres' step."""
@@ -649,9 +654,16 @@ def _measure_reading(
             if split is None:  # or where its plate centres step by a joint's
                 layers_t = [plate_t_m[labels_n == k] for k in range(n + 1)]
                 split = stepped_layer(layers, layers_t, starts, ends, cfg.layer_pitch_m)
+            if split is None and cfg.bends:  # or where its points bend in the plane
+                split = bent_layer(layers, starts, ends, cfg.half_width_m)
         if split is not None:
-            j, at = split  # its points beyond the pin, and every layer above, move up one
-            above = (labels > j) | ((labels_n == j) & ((p[:, [0, 2]] - at) @ (at - starts[j]) > 0))
+            j, at = split[:2]  # its points beyond the pin, and every layer above, move up one
+            sz = p[:, [0, 2]]
+            if len(split) == 3:  # a bend: each point to the nearer of the two plates meeting there
+                beyond = distance_to_segment(sz, at, split[2]) < distance_to_segment(sz, starts[j], at)
+            else:
+                beyond = (sz - at) @ (at - starts[j]) > 0
+            above = (labels > j) | ((labels_n == j) & beyond)
             split_labels = np.where(above, labels + 1, labels)
             if split_labels.tobytes() not in split_before:  # else split there and merged back since
                 split_before.add(split_labels.tobytes())
