@@ -168,8 +168,8 @@ class LayersConfig:
     hand-held capture (`observe.points.PointsConfig.fine_voxel_m`) holds 1,600-2,900 above the socket
     (six development captures), the rig's 96 x 128 views about 1,800."""
     bends: bool = True
-    """Split a layer whose points bend in the plane where two plates hold them far closer than its one
-    (`measure.bends`)."""
+    """Split the last layer where its points bend in the plane, two plates holding them far closer
+    than its one (`measure.bends`); False: bends are not read."""
     joint_thickness: bool = True
     """Where the chain was seen from both sides of its plane, read its joints from how thick it stands
     there (`measure.joints`: a pin's overlap is two plates thick) before the plate centres' step."""
