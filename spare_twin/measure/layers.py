@@ -438,10 +438,12 @@ def _at_count(
     loose, a link too short to print)."""
     plate_t_m = readings[0][1] * cfg.layer_pitch_m
     sz = p[:, [0, 2]]
-    labels, n = m.labels, m.n_links
+    labels, n, x = m.labels, m.n_links, None
     while n < count:
         layers = [sz[labels == k] for k in range(n + 1)]
-        starts, ends = plate_segments(fit_layers(layers, n, cfg)[0], n, cfg)
+        if x is None:  # the settled chain's fit is not kept on `m`; a split's is, from the last round
+            x = fit_layers(layers, n, cfg)[0]
+        starts, ends = plate_segments(x, n, cfg)
         layers_t = [plate_t_m[labels == k] for k in range(n + 1)]
         candidates = []
         for j, at, _ in layer_steps(layers, layers_t, starts, ends, cfg.layer_pitch_m):
