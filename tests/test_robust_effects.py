@@ -222,20 +222,25 @@ def test_a_reading_past_the_last_layer_a_chain_can_have_loses():
 
 def test_a_reading_whose_checks_end_far_looser_than_its_closest_chain_gives_no_count(monkeypatch):
     """The rig view of bench seed 30485 (6 links, a 115 deg fold at the first joint, one frame of 8
-    cameras; its last link hidden): both readings' checks split layers at hidden joints and merged cut
-    plates round and round, from 5 links at 2.3 mm RMS down to 1 link at 6.1 mm, and `predict` answered
-    1. A reading that ends more than `MAX_LOOSENING` times looser than the closest chain it passed
-    through gives no count, and says why; without that rule it gives a wrong count. Since release
-    0.6.37 (a bent last layer split, `measure.bends`) the closest chain passed through has 6 links,
-    and the wrong count is 2."""
+    cameras; its last link hidden): with its plates' thickness read as the median of every place (until
+    release 0.6.38), both readings' checks split layers at hidden joints and merged cut plates round
+    and round, from 6 links at 2.3 mm RMS down to 1 link at 6.1 mm, and `predict` answered 1 (before
+    0.6.37's bends: from 5). A reading that ends more than `MAX_LOOSENING` times looser than the
+    closest chain it passed through gives no count, and says why; without that rule it gives a wrong
+    count. With the plates' mode (`measure.joints._lower_mode`) the joints read a layer thick and the
+    reading settles at 6 links."""
+    from spare_twin.measure import joints as J
     from spare_twin.measure import layers as L
 
-    points, dirs, print_scale, sign_known, _ = _bench_points("seed30485_rig")
+    points, dirs, print_scale, sign_known, lengths_pu = _bench_points("seed30485_rig")
+    m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
+    assert m.n_links == 6 and np.sum((m.lengths_pu - lengths_pu) ** 2) < 0.02, m
+    monkeypatch.setattr(J, "_lower_mode", lambda thickness_m, pitch_m: float(np.median(thickness_m)))
     m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
     assert m.n_links is None and m.reason.startswith("the layers' reading did not settle"), m
     assert "chain of 6 links at 2.3 mm (RMS) to 1 at 6.1 mm" in m.reason
     monkeypatch.setattr(L, "MAX_LOOSENING", np.inf)
-    assert measure_layers(points, print_scale, sign_known, LayersConfig(), dirs).n_links == 2  # 1 before 0.6.37
+    assert measure_layers(points, print_scale, sign_known, LayersConfig(), dirs).n_links == 2
 
 
 def test_a_side_in_the_projectors_shadow_still_counts(printed_object, tmp_path):

@@ -10,7 +10,7 @@ import pytest
 from spare_twin.cli import main
 from spare_twin.object.kinematics import forward_kinematics, printed_lengths_m
 from spare_twin.recording import Recording
-from spare_twin.sim.active_sensor import shadow_mask
+from spare_twin.sim.active_sensor import flying_pixels, shadow_mask
 from spare_twin.sim.effects import ALL_EFFECTS, EFFECTS, NO_EFFECTS, parse_effects
 from spare_twin.sim.noise import load_noise
 from spare_twin.sim.render import RenderConfig, render_recording
@@ -60,6 +60,25 @@ def test_flying_pixels_string_a_thin_links_silhouette_out_along_the_rays(printed
         assert np.all(d1[changed] >= np.minimum(d0, np.where(nb > 0, nb, np.inf).min(0))[changed] - 1e-4)
     assert rim > 100 and streak > 0.3 * rim, (streak, rim)  # flying_prob 0.6, a mixed depth drawn uniformly
     assert fly.source["effects"]["on"] == ["flying_pixels"] and "effects" not in clean.source
+
+
+def test_a_sensors_edge_holes_start_at_the_scenes_edges_not_at_its_mixed_readings():
+    """The noise model's holes (fitted per edge of the scene) start where the scene's depth steps, not
+    at each mixed reading along a link's rim (deeper than the link beside it): with flying pixels on,
+    a thin link keeps the pixels it keeps without them (bench seed 31685's Kinect capture: a link
+    about 12 pixels wide read 95 pixels where it reads 449)."""
+    scene = np.full((120, 640), 0.8, np.float32)  # a desk 30 cm behind ... (the sensor's own width)
+    scene[:, 300:312] = 0.5  # ... a link 12 pixels wide
+    link = scene < 0.6
+    noise = load_noise("kinect_v1")
+    noise = dataclasses.replace(noise, min_range_m=0.2)
+    mixed = flying_pixels(scene, np.random.default_rng(1), 0.6, 2)
+    assert (mixed[link] > 0.51).sum() > 100  # the link's rim reads deeper than the link
+    kept = {}
+    for name, depth, scene_depth in (("plain", scene, None), ("mixed", mixed, scene), ("as_own", mixed, None)):
+        kept[name] = int((noise.apply(depth, np.random.default_rng(2), scene_depth)[link] > 0).sum())
+    assert kept["mixed"] == kept["plain"] > 0.5 * link.sum(), kept  # the same holes as without mixed readings
+    assert kept["as_own"] < 0.7 * kept["plain"], kept  # each mixed reading an edge: the link eaten from its rims
 
 
 @pytest.mark.parametrize("baseline_m", [0.05, -0.075])

@@ -101,15 +101,37 @@ class Thickness:
         return (self.at(places_sz_m) - self.plate_m) / self.pitch_m
 
     def _typical(self, front_sz_m: np.ndarray) -> float:
-        """One plate's thickness as seen: the median over the front points' places (most of a chain is
-        one plate; the joints' overlaps are a few discs). It holds the plates' own thickness and any
-        offset between the two sides' views (a sweep's registration drifts along its arc)."""
+        """One plate's thickness as seen: the plates' mode among the thicknesses at the front points'
+        places (`_lower_mode`). It holds the plates' own thickness and any offset between the two
+        sides' views (a sweep's registration drifts along its arc)."""
         if len(front_sz_m) == 0:
             return np.nan
         step = max(1, len(front_sz_m) // 400)
         values = self.at(front_sz_m[::step])
         values = values[np.isfinite(values)]
-        return float(np.median(values)) if len(values) else np.nan
+        return _lower_mode(values, self.pitch_m) if len(values) else np.nan
+
+
+#: The plates' mode is sought within this of a thickness: a joint's overlap stands a pitch (6.4 mm)
+#: thicker, well outside it.
+PLATE_MODE_WINDOW_M = 0.002
+
+
+def _lower_mode(thickness_m: np.ndarray, pitch_m: float) -> float:
+    """The mode of the thinner of the two kinds of place, plates and joints' overlaps a pitch thicker:
+    a median window moved from the lower quartile until it rests. The median of all places is not
+    it: on a chain of short links the overlaps are nearly half the places and the median falls
+    between the two modes (bench seed 31697's real capture: 8.3 mm against a plate mode of 5.6 mm,
+    every joint then a layer too thin and its link merged as a cut plate)."""
+    window = min(PLATE_MODE_WINDOW_M, pitch_m / 3)
+    centre = float(np.percentile(thickness_m, 25))
+    for _ in range(20):
+        near = thickness_m[np.abs(thickness_m - centre) <= window]
+        moved = float(np.median(near))
+        if abs(moved - centre) < 1e-5:
+            break
+        centre = moved
+    return centre
 
 
 def joint_excess_layers(thickness: Thickness, starts: np.ndarray) -> np.ndarray:

@@ -272,7 +272,7 @@ def render_recording(
                 f = twin.render(T, K, W, H, rig.near_m, rig.far_m, segmentation=cfg.segmentation or fx.needs_labels)
                 depth = fx.depth(f.depth_m, f.segmentation, K, v, t)
                 if noise is not None:  # one stream per (seed, camera, frame): any subset re-renders identically
-                    depth = noise.apply(depth, np.random.default_rng([cfg.seed, 0x5E, v, t]))
+                    depth = noise.apply(depth, np.random.default_rng([cfg.seed, 0x5E, v, t]), f.depth_m)
                 seg = f.segmentation if f.segmentation is not None or not cfg.segmentation else no_labels
                 seg = seg if cfg.segmentation else None
                 T_rec = fx.recorded_pose(T, t) if cam.poses == "per_frame" else None  # a tracker's, not the truth
