@@ -65,8 +65,8 @@ def test_flying_pixels_string_a_thin_links_silhouette_out_along_the_rays(printed
 def test_a_sensors_edge_holes_start_at_the_scenes_edges_not_at_its_mixed_readings():
     """The noise model's holes (fitted per edge of the scene) start where the scene's depth steps, not
     at each mixed reading along a link's rim (deeper than the link beside it): with flying pixels on,
-    a thin link keeps the pixels it keeps without them (bench seed 31685's Kinect capture: a link
-    about 12 pixels wide read 95 pixels where it reads 449)."""
+    a thin link keeps the pixels it keeps without them (bench seed 31685's Kinect capture: one link
+    read 95 pixels in every fourth frame of its first camera, 449 with the scene's edges)."""
     scene = np.full((120, 640), 0.8, np.float32)  # a desk 30 cm behind ... (the sensor's own width)
     scene[:, 300:312] = 0.5  # ... a link 12 pixels wide
     link = scene < 0.6
