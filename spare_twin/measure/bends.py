@@ -42,6 +42,11 @@ def _outside(q: np.ndarray, segments: list[tuple[np.ndarray, np.ndarray]], hw: f
     return np.maximum(d - hw, 0.0)
 
 
+def beyond_bend(sz_m: np.ndarray, start: np.ndarray, bend: np.ndarray, far: np.ndarray) -> np.ndarray:
+    """(N,) bool: the points nearer the plate from `bend` to `far` than the one from `start` to `bend`."""
+    return distance_to_segment(sz_m, bend, far) < distance_to_segment(sz_m, start, bend)
+
+
 def bent_layer(
     layers_sz_m: list[np.ndarray], starts: np.ndarray, ends: np.ndarray, half_width_m: float
 ) -> tuple[int, np.ndarray, np.ndarray] | None:
@@ -95,7 +100,7 @@ def _plates(q: np.ndarray, corners: list[np.ndarray], hw: float):
         cos = first @ second / (np.linalg.norm(first) * np.linalg.norm(second))
         if not MIN_BEND_DEG <= np.degrees(np.arccos(np.clip(cos, -1.0, 1.0))) <= MAX_BEND_DEG:
             return None
-        beyond = distance_to_segment(q, c[1], c[2]) < distance_to_segment(q, c[0], c[1])
+        beyond = beyond_bend(q, *c)
         if min(beyond.sum(), (~beyond).sum()) < MIN_SIDE_POINTS or (~beyond).sum() < MIN_NEAR_SHARE * len(q):
             return None
     return list(c), float(np.sqrt(np.mean(res.fun**2)))

@@ -64,7 +64,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
-from spare_twin.measure.bends import bent_layer
+from spare_twin.measure.bends import bent_layer, beyond_bend
 from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments, refit_seen_from
 from spare_twin.measure.fragments import adopt_fragments, counted_pieces, pieces
 from spare_twin.measure.joints import (
@@ -662,7 +662,7 @@ def _measure_reading(
             j, at = split[:2]  # its points beyond the pin, and every layer above, move up one
             sz = p[:, [0, 2]]
             if len(split) == 3:  # a bend: each point to the nearer of the two plates meeting there
-                beyond = distance_to_segment(sz, at, split[2]) < distance_to_segment(sz, starts[j], at)
+                beyond = beyond_bend(sz, starts[j], at, split[2])
             else:
                 beyond = (sz - at) @ (at - starts[j]) > 0
             above = (labels > j) | ((labels_n == j) & beyond)
