@@ -19,7 +19,9 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    next to it, go to that layer first (`measure.fragments`). The followed comb's zero is kept on the measurement: it
    levels the profile network's input (`measure.level`).
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
-   2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture).
+   2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture) and
+   `min_layer_fraction` of them, or just above it, fewer points spanning a plate's width
+   (`min_thin_layer_width`: a dark top link, not a strip of its parent read a layer up).
 3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
    at angle phi_k = a_1 + .. + a_k from vertical, a plate 12 mm wide around its centre line) fitted
    by robust least squares (scipy) with each point held to its own link only: a point outside its
@@ -129,7 +131,12 @@ class LayersConfig:
     min_layer_points: int = 12
     """A layer with fewer points is noise (flying pixels, a pin head), not a link."""
     min_layer_fraction: float = 0.03
-    """... or fewer than this share of the links' points."""
+    """... or fewer than this share of the links' points,"""
+    min_thin_layer_width: float = 0.9
+    """... unless it is the layer just above the others and its points span this share of a plate's
+    width across their main direction (`count_links`): a top link seen in few points (dark plastic, a
+    capture from far) still shows its plate's width, a strip of its parent read a layer up (flying
+    pixels, a rim) does not."""
     coverage_tolerance_m: float = 0.0025
     """A plate sample this near a point of its layer is covered (about the points' spacing: set for
     the 3 mm merge measured until release 0.6.19, kept for the 2 mm one). Nothing else stops a free
@@ -333,12 +340,21 @@ def _align_sides(s_m, z_m, centre_t, side, cfg: LayersConfig) -> np.ndarray:
     return centre_t - side * gap / 2
 
 
-def count_links(labels: np.ndarray, cfg: LayersConfig) -> tuple[int | None, tuple[int, ...]]:
-    """(n, points per layer 0..): the highest layer with enough points."""
+def count_links(
+    labels: np.ndarray, cfg: LayersConfig, sz_m: np.ndarray | None = None
+) -> tuple[int | None, tuple[int, ...]]:
+    """(n, points per layer 0..): the highest layer with enough points, and with the points' (N, 2)
+    places in the plane `sz_m`, the layer just above it where it holds a plate's width of points
+    (`LayersConfig.min_thin_layer_width`). On the 480 real captures of bench seeds 31350-31829 the
+    layers above the count with 12 points or more but under the share spanned 12.0-34 mm where they were
+    a link (31739, 31817: 6 links read as 5; 31403, 31529, 31731) and 2.3-10.5 mm where they were not."""
     counts = np.bincount(np.clip(labels, 0, MAX_MOVING_LINKS + 1), minlength=MAX_MOVING_LINKS + 2)
     enough = max(cfg.min_layer_points, cfg.min_layer_fraction * len(labels))
     populated = np.nonzero(counts[1 : MAX_MOVING_LINKS + 1] >= enough)[0]
     n = int(populated.max()) + 1 if len(populated) else None
+    if sz_m is not None and n is not None and n < MAX_MOVING_LINKS and counts[n + 1] >= cfg.min_layer_points:
+        if _width_m(sz_m[labels == n + 1]) >= cfg.min_thin_layer_width * 2 * cfg.half_width_m:
+            n += 1
     return n, tuple(int(c) for c in counts)
 
 
@@ -583,7 +599,7 @@ def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int
     is one plate, so each of its layers is one piece; a reading that puts two separate parts of the
     chain in one layer has read a plate across a layer boundary (the comb held still while joint
     play's leans climbed along a straight run of short links: bench seed 30068, 3 links read as 1)."""
-    n = count_links(labels, cfg)[0] or 0
+    n = count_links(labels, cfg, sz_m)[0] or 0
     labels = np.clip(labels, 0, n)
     extra = 0
     for k in range(1, n + 1):
@@ -631,7 +647,7 @@ def _measure_reading(
     its lengths and angles refitted without the discs hidden from a capture seen from one side
     (`seen_from`, `fit.refit_seen_from`),
     or why it is no chain."""
-    n, per_layer = count_links(labels, cfg)
+    n, per_layer = count_links(labels, cfg, p[:, [0, 2]])
     if n is None:
         return LayerMeasurement(None, None, None, per_layer)
     split_before: set[bytes] = set()
