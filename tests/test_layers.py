@@ -623,7 +623,7 @@ def test_of_two_readings_with_one_count_the_one_that_misreads_nothing_and_fits_c
     ]
     monkeypatch.setattr(L, "layer_readings", lambda *args: readings)
     monkeypatch.setattr(L, "_measure_reading", lambda p, labels, *args: measured[int(labels[0])])
-    monkeypatch.setattr(L, "split_layers", lambda sz, labels, cfg, centres: (comb, followed)[int(labels[0])][2])
+    monkeypatch.setattr(L, "split_layers", lambda sz, labels, cfg: (comb, followed)[int(labels[0])][2])
     monkeypatch.setattr(L, "past_last_layer", lambda labels: (comb, followed)[int(labels[0])][1])
     stood = L.measure_layers(points, 0.08)
     assert stood.n_links == 2 and stood.lengths_pu[0] == {"comb": 1.0, "followed": 2.0}[chosen]

@@ -321,38 +321,6 @@ def test_a_tracked_sweep_is_registered_from_its_trackers_poses(handheld_rec, mon
     assert measured.n_links == n_links and (blurred.n_links != n_links or measured.rms_m < 0.5 * blurred.rms_m)
 
 
-def test_a_tracked_sweep_whose_registration_slips_is_read_at_its_trackers_poses(handheld_rec, monkeypatch):
-    """Registration from a tracker's poses can slip where the frames match poorly (bench seed 31758, a
-    1-link SR300 sweep of 16 frames: two images of the chain turned apart, 9.4 mm RMS off any chain and
-    no answer). Where the registered views fit no chain within 2 mm, the tracker's own poses, brought
-    into register on the object, are read as well, and the closer chain kept. Here the registration is
-    made to turn every other view 40 deg about a vertical axis 10 cm from the chain."""
-    from spare_twin.measure.chain import TRACKER_POSES, measure_views
-    from spare_twin.observe.views import TRACKED_SWEEP, recording_views
-
-    rec = Recording.open(handheld_rec)
-    n_links = rec.object_config["n_links"]
-    truth = np.asarray(rec.camera_poses(rec.cameras[0].name))
-    off = [_turned(T, 0.15, 0.002, seed) for seed, T in enumerate(truth)]
-    monkeypatch.setattr(rec, "camera_poses", lambda name: np.array(off))
-    seen = recording_views(rec)
-    assert seen.source == TRACKED_SWEEP and np.array_equal(np.array(seen.tracker_poses), np.array(off))
-    at_tracker = seen.as_tracked()
-    assert all(a.depth_m is v.depth_m for a, v in zip(at_tracker, seen.views))  # the same images, not copies
-    turn = np.eye(4)  # 40 deg about a vertical axis 10 cm from the chain: beyond what matching pulls back
-    cos, sin = math.cos(math.radians(40)), math.sin(math.radians(40))
-    turn[:2, :2] = [[cos, -sin], [sin, cos]]
-    turn[:3, 3] = np.array([0.1, 0.0, 0.0]) - turn[:3, :3] @ np.array([0.1, 0.0, 0.0])
-    slipped = tuple(
-        dataclasses.replace(v, T_world_camera=turn @ v.T_world_camera if i % 2 else v.T_world_camera)
-        for i, v in enumerate(seen.views)
-    )
-    _, lost = measure_views(dataclasses.replace(seen, views=slipped, tracker_poses=None), PRINT_SCALE)
-    found, measured = measure_views(dataclasses.replace(seen, views=slipped), PRINT_SCALE)
-    assert lost.n_links is None, (lost.n_links, lost.rms_m)
-    assert found.source.startswith(TRACKER_POSES) and measured.n_links == n_links and measured.rms_m < 0.002
-
-
 def test_poses_its_frames_agree_with_are_kept_as_given(handheld_rec, monkeypatch):
     """Poses a sweep's frames agree with (exact ones: a rig, a robot arm) are read as given, to the
     byte, since registering them would only add ICP's small errors; a tracker's poses a few tenths of

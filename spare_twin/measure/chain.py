@@ -23,15 +23,12 @@ from spare_twin.threads import side_by_side
 ON_OBJECT = ", brought into register on the object"
 #: `ChainObservation.source` of a sweep registered here without poses, then brought into register on the object.
 ON_OBJECT_SWEEP = REGISTERED_SWEEP + ON_OBJECT
-#: `ChainObservation.source` of a tracked sweep read at its tracker's own poses (then on the object).
-TRACKER_POSES = "sweep, at its tracker's poses as given"
 #: Parts of a registered sweep looked at again when the whole gives no chain (`measure_views`).
 SWEEP_PARTS = ((0.0, 0.5), (0.5, 1.0), (0.25, 0.75))
 #: Fewer registered frames than this are not split.
 MIN_FRAMES_TO_SPLIT = 8
 #: A part whose chain fits its points this well (RMS, metres) ends the search: the print's own
 #: roughness and the sensor's noise leave 0.2-0.5 mm; a part still out of register leaves 5 mm and more.
-#: A tracked sweep's registered chain within it is not read at the tracker's own poses.
 CLEAN_PART_RMS_M = 0.002
 
 
@@ -74,13 +71,7 @@ def measure_views(
     mm after). Where both give a chain, the closer one is kept (`LayerMeasurement.cost_m`: RMS in the
     plane and across it): matching on the object can also pull apart a sweep that registration had in
     register (bench seed 30119, 6 links: 0.3 mm as registered, 2 links at 3.9 mm after; on the 120
-    captures of seeds 30006-30125 this changed that count alone). Where neither fits a chain within
-    `CLEAN_PART_RMS_M`, a tracked sweep is read at its tracker's own poses too, brought into register
-    on the object, and the closer kept: the registration that starts from a tracker's poses can slip
-    (bench seed 31758, a 1-link SR300 sweep of 16 frames: two images of the chain turned apart, 9.4 mm
-    RMS off any chain; at the tracker's poses on the object, 0.8 mm). Read on every tracked capture, the
-    tracker's poses fitted closer and counted wrong where the registered chain was clean (two of the
-    192 tracked real captures of seeds 31350-31733, 1.5 and 1.8 mm RMS). Where the views as registered give no
+    captures of seeds 30006-30125 this changed that count alone). Where the views as registered give no
     chain at all (the fused object too wide, not standing on a 12 mm column, or blurred centimetres off
     any chain), the registration is off by more than the object can pull back somewhere, and the sweep's
     parts are looked at too: its first half, its second half and its middle half, each registered on its
@@ -121,13 +112,8 @@ def _best_try(
     readings = side_by_side(lambda read: read(), [measured_on_object, measured_as_registered])
     (on_object, measured), as_registered = readings
     seconds = _add(on_object.timings_s, as_registered[0].timings_s, but="registration")
-    best = min(readings, key=_fit_rank)
-    if seen.tracker_poses is not None and (best[1].n_links is None or best[1].rms_m > CLEAN_PART_RMS_M):
-        # registration from the tracker's poses slipped somewhere: the tracker's own, on the object
-        as_tracked = _on_object(seen.as_tracked(), TRACKER_POSES, seen.registration_s, print_scale, geometry)
-        seconds = _add(seconds, as_tracked[0].timings_s, but="registration")
-        best = min((best, as_tracked), key=_fit_rank)
     if as_registered[1].n_links is not None or seen.frames is None or len(views) < MIN_FRAMES_TO_SPLIT:
+        best = min(((on_object, measured), as_registered), key=_fit_rank)
         return dataclasses.replace(best[0], timings_s=seconds), best[1]
     # as registered the sweep fused into no chain: brought into register on the object the whole
     # sweep stands where it fits cleanly, else the closest of its parts

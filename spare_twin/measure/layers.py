@@ -20,9 +20,8 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    levels the profile network's input (`measure.level`).
 2. **count**: the highest layer holding at least `min_layer_points` points (links are at least
    2.5 cm long: hundreds of points at the rig's resolution, dozens in a coarse capture) and
-   `min_layer_fraction` of them, or just above it, fewer points spanning a plate's width or centred
-   on their own layer (`min_thin_layer_width`, `max_thin_layer_offset`: a dark or short top link, not
-   its parent's noise read a layer up).
+   `min_layer_fraction` of them, or just above it, fewer points spanning a plate's width
+   (`min_thin_layer_width`: a dark top link, not a strip of its parent read a layer up).
 3. **fit**: a planar chain of that count (joint 1 on the base axis at height L0, link k from joint k
    at angle phi_k = a_1 + .. + a_k from vertical, a plate 12 mm wide around its centre line) fitted
    by robust least squares (scipy) with each point held to its own link only: a point outside its
@@ -137,11 +136,7 @@ class LayersConfig:
     """... unless it is the layer just above the others and its points span this share of a plate's
     width across their main direction (`count_links`): a top link seen in few points (dark plastic, a
     capture from far) still shows its plate's width, a strip of its parent read a layer up (flying
-    pixels, a rim) does not; ..."""
-    max_thin_layer_offset: float = 0.35
-    """... or their plate centres' median sits within this many layers of their own: a parent's points
-    read a layer up are its noise's tail, just past the half-way mark (0.46-0.49 layers below on the
-    real captures of seeds 31350-31925), a link's own centre on its layer."""
+    pixels, a rim) does not."""
     coverage_tolerance_m: float = 0.0025
     """A plate sample this near a point of its layer is covered (about the points' spacing: set for
     the 3 mm merge measured until release 0.6.19, kept for the 2 mm one). Nothing else stops a free
@@ -346,24 +341,20 @@ def _align_sides(s_m, z_m, centre_t, side, cfg: LayersConfig) -> np.ndarray:
 
 
 def count_links(
-    labels: np.ndarray, cfg: LayersConfig, sz_m: np.ndarray | None = None, centre_layers: np.ndarray | None = None
+    labels: np.ndarray, cfg: LayersConfig, sz_m: np.ndarray | None = None
 ) -> tuple[int | None, tuple[int, ...]]:
     """(n, points per layer 0..): the highest layer with enough points, and with the points' (N, 2)
-    places in the plane `sz_m` and their plate centres `centre_layers` (in layers), the layer just above
-    it where its points span a plate's width or sit on their own layer (`LayersConfig.min_thin_layer_width`,
-    `max_thin_layer_offset`). On the 576 real captures of bench seeds 31350-31925, every reading scanned,
-    the layers above the count with 12 points or more but under the share spanned 12.0-34 mm or sat
-    0.06-0.34 layers below their own where they were a link (31739, 31817, 31841, 31721: 6 links read
-    as 5; 31403, 31529, 31731), and 2.3-10.5 mm and 0.46-0.49 below where they were not."""
+    places in the plane `sz_m`, the layer just above it where it holds a plate's width of points
+    (`LayersConfig.min_thin_layer_width`). On the 480 real captures of bench seeds 31350-31829 the
+    layers above the count with 12 points or more but under the share spanned 12.0-34 mm where they were
+    a link (31739, 31817: 6 links read as 5; 31403, 31529, 31731) and 2.3-10.5 mm where they were not."""
     counts = np.bincount(np.clip(labels, 0, MAX_MOVING_LINKS + 1), minlength=MAX_MOVING_LINKS + 2)
     enough = max(cfg.min_layer_points, cfg.min_layer_fraction * len(labels))
     populated = np.nonzero(counts[1 : MAX_MOVING_LINKS + 1] >= enough)[0]
     n = int(populated.max()) + 1 if len(populated) else None
     if sz_m is not None and n is not None and n < MAX_MOVING_LINKS and counts[n + 1] >= cfg.min_layer_points:
-        top = labels == n + 1
-        wide = _width_m(sz_m[top]) >= cfg.min_thin_layer_width * 2 * cfg.half_width_m
-        on_layer = centre_layers is not None and np.median(centre_layers[top]) >= n + 1 - cfg.max_thin_layer_offset
-        n += int(wide or on_layer)
+        if _width_m(sz_m[labels == n + 1]) >= cfg.min_thin_layer_width * 2 * cfg.half_width_m:
+            n += 1
     return n, tuple(int(c) for c in counts)
 
 
@@ -534,7 +525,7 @@ def _chosen_reading(
         closer, looser = sorted((as_designed, followed), key=lambda m: m.rms_m)
         if closer.rms_m <= ONE_COUNT_RMS_SHARE * looser.rms_m:
             return closer
-    split = [split_layers(p[:, [0, 2]], labels, cfg, centres) for labels, centres in readings]
+    split = [split_layers(p[:, [0, 2]], labels, cfg) for labels, _ in readings]
     if split[0] != split[1]:
         return as_designed if split[0] < split[1] else followed
     if followed.n_links == as_designed.n_links:  # a near tie keeps the comb's
@@ -601,17 +592,14 @@ def past_last_layer(labels: np.ndarray) -> bool:
     return bool((labels > MAX_MOVING_LINKS).sum() > MAX_PAST_LAST_LAYER_FRACTION * len(labels))
 
 
-def split_layers(
-    sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig, centre_layers: np.ndarray | None = None
-) -> int:
+def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int:
     """How many more pieces than links the layers 1..n of a reading hold (n as the reading counts
-    them, `count_links` with its plate centres `centre_layers` where given, before any layer is found
-    to be no link): pieces of a layer not joined in the plane (within `radius_m`), each of at least
-    `fragments.MIN_PIECE_POINTS` points and `MIN_PIECE_SHARE`. A link
+    them, before any layer is found to be no link): pieces of a layer not joined in the plane
+    (within `radius_m`), each of at least `fragments.MIN_PIECE_POINTS` points and `MIN_PIECE_SHARE`. A link
     is one plate, so each of its layers is one piece; a reading that puts two separate parts of the
     chain in one layer has read a plate across a layer boundary (the comb held still while joint
     play's leans climbed along a straight run of short links: bench seed 30068, 3 links read as 1)."""
-    n = count_links(labels, cfg, sz_m, centre_layers)[0] or 0
+    n = count_links(labels, cfg, sz_m)[0] or 0
     labels = np.clip(labels, 0, n)
     extra = 0
     for k in range(1, n + 1):
@@ -659,7 +647,7 @@ def _measure_reading(
     its lengths and angles refitted without the discs hidden from a capture seen from one side
     (`seen_from`, `fit.refit_seen_from`),
     or why it is no chain."""
-    n, per_layer = count_links(labels, cfg, p[:, [0, 2]], centre_layers)
+    n, per_layer = count_links(labels, cfg, p[:, [0, 2]])
     if n is None:
         return LayerMeasurement(None, None, None, per_layer)
     split_before: set[bytes] = set()

@@ -74,15 +74,6 @@ class PosedViews:
     registered on its own (`sweep_part`). A tracked sweep keeps none: its parts are not looked at."""
     frames_in_recording: int | None = None
     """How many frames the source has (a sweep's views are a sample of them)."""
-    tracker_poses: tuple[np.ndarray, ...] | None = None
-    """A `TRACKED_SWEEP`: its tracker's own (4, 4) camera-to-world poses of `views`, as given, for the
-    measurement to try as well (`measure.chain.measure_views`): registration from them can slip."""
-
-    def as_tracked(self) -> list[PosedView]:
-        """`views` at their tracker's own poses (`tracker_poses`), the same depth images."""
-        if self.tracker_poses is None:
-            raise ValueError("as_tracked: only a tracked sweep has its tracker's poses")
-        return [PosedView(v.depth_m, v.K, T, v.rgb) for v, T in zip(self.views, self.tracker_poses)]
 
 
 def _without_flying_pixels(fr: RGBDFrame, cfg: PointsConfig = PointsConfig()) -> RGBDFrame:
@@ -168,9 +159,8 @@ def recording_views(
         return PosedViews(tuple(_posed(frames, tracked)), "sweep", frames_in_recording=rec.n_frames)
     if tracked is None:
         return PosedViews(tuple(views), REGISTERED_SWEEP, seconds, tuple(frames), rec.n_frames)
-    if kept:
-        return PosedViews(tuple(views), TRACKED_AS_GIVEN, seconds, frames_in_recording=rec.n_frames)
-    return PosedViews(tuple(views), TRACKED_SWEEP, seconds, frames_in_recording=rec.n_frames, tracker_poses=tracked)
+    source = TRACKED_AS_GIVEN if kept else TRACKED_SWEEP
+    return PosedViews(tuple(views), source, seconds, frames_in_recording=rec.n_frames)
 
 
 def sweep_part(seen: PosedViews, part: tuple[float, float], progress: bool = False) -> PosedViews:
