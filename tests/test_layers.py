@@ -13,7 +13,7 @@ import pytest
 from plate_chain import Plate, chain_faces, leaning_chain
 from scipy.spatial import cKDTree
 
-from spare_twin.measure import fit
+from spare_twin.measure import fit, merges
 from spare_twin.measure import layers as L
 from spare_twin.measure.chain import measure_views
 from spare_twin.measure.layers import LayersConfig, measure_layers, measure_profile
@@ -206,7 +206,7 @@ def test_a_layer_a_whole_layer_above_its_parent_is_a_link_however_thin_its_joint
     obj = capture.build(tmp_path, c)
     seen = recording_views(Recording.open(capture.draw_sim_rig(obj, tmp_path, c, cfg)))
     assert measure_views(seen, SCALE)[1].n_links == 4
-    monkeypatch.setattr(L, "MIN_LINK_RISE_LAYERS", math.inf)  # the joint's thickness alone decides
+    monkeypatch.setattr(merges, "MIN_LINK_RISE_LAYERS", math.inf)  # the joint's thickness alone decides
     assert measure_views(seen, SCALE)[1].n_links == 4  # but layer 3's points bend off its plate (`measure.bends`)
     monkeypatch.setattr(L, "bent_layer", lambda *layers: None)
     assert measure_views(seen, SCALE)[1].n_links == 3
@@ -242,11 +242,11 @@ def test_a_layer_a_whole_layer_up_on_a_thin_joint_is_judged_by_the_thickness_whe
     layers, centres = [sz[:0], bottom, top], [np.zeros(0), bottom_centres, top_centres]
     thin = np.array([np.nan, 0.0])  # joint 2, as fitted, no thicker than a plate
     kept = []
-    assert L._is_cut(layers, centres, thin, 2, thickness, HALF_WIDTH_M, kept) is cut
+    assert merges.is_cut(layers, centres, thin, 2, thickness, HALF_WIDTH_M, kept) is cut
     assert kept == ([] if cut else [2])
-    assert L._is_cut(layers, centres, thin, 2, thickness, HALF_WIDTH_M) is True  # not read again: a cut
+    assert merges.is_cut(layers, centres, thin, 2, thickness, HALF_WIDTH_M) is True  # not read again: a cut
     # without a thickness (seen from one side) the step where the layers meet decides, as before
-    assert L._is_cut(layers, centres, thin, 2, None, HALF_WIDTH_M) is L._cut_plate(layers, centres, 2)
+    assert merges.is_cut(layers, centres, thin, 2, None, HALF_WIDTH_M) is merges.cut_plate(layers, centres, 2)
 
 
 def test_a_box_bigger_than_the_chain_is_passed_over(rig_rec):

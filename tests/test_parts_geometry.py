@@ -90,7 +90,7 @@ def test_predict_with_the_parts_measures_the_chain(eight_mm, capsys):
 def test_the_default_geometry_reads_the_same_capture_less_well(eight_mm, capsys):
     """Without --parts the chain is read with the default 6.4 mm pitch: link 5 sits 6.6 of those
     layers up, and a plate cut in two at a half-way mark fits as a link shorter than any printable
-    one. That one is merged back (`measure.layers._unprintable_link`: the count holds; it was 6 before
+    one. That one is merged back (`measure.merges.unprintable_link`: the count holds; it was 6 before
     the rule), but the lengths come out farther from the print's than with --parts (0.010 against
     0.007 paper units at most on this capture, measured on the 2 mm merge; 0.020 on the 3 mm one).
     The JSON says the defaults were used."""

@@ -258,17 +258,17 @@ def test_a_link_between_joints_shorter_than_any_printable_one_is_no_link():
     link). The default parts print no link shorter than 9 mm between axes (`config.validate`); a
     measured one below 7.5 mm is merged back. `tests/test_parts_geometry.py` shows it on a render."""
     from spare_twin.config import PartDims, min_between_axes_mm_of
-    from spare_twin.measure.layers import _unprintable_link
+    from spare_twin.measure.merges import unprintable_link
 
     cfg = LayersConfig()
     assert min_between_axes_mm_of(PartDims()) == pytest.approx(9.0)
     assert cfg.min_middle_link_m == pytest.approx(0.0075)
     x = np.array([0.0, 0.09, 0.05, 0.006, 0.04, 0.03, 0.1, 0.2, 0.3, 0.4])  # s0, L0..L4, a1..a4: 4 links
-    assert _unprintable_link(x, 4, cfg) == 2
+    assert unprintable_link(x, 4, cfg) == 2
     x[3] = 0.008  # a short link that prints
-    assert _unprintable_link(x, 4, cfg) is None
+    assert unprintable_link(x, 4, cfg) is None
     x[5] = 0.006  # the last link has one joint only: half the plate's width is its limit, not this
-    assert _unprintable_link(x, 4, cfg) is None
+    assert unprintable_link(x, 4, cfg) is None
     wide = LayersConfig.for_parts(dataclasses.replace(PartDims(), spacer_ring_diameter_mm=11.0))
     assert wide.min_middle_link_m > cfg.min_middle_link_m  # the parts set it
 

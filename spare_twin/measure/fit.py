@@ -15,14 +15,11 @@ finite-difference Jacobian took 2n + 2 further evaluations of the residuals per 
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 from scipy.optimize import least_squares
 from scipy.spatial import cKDTree
 
-if TYPE_CHECKING:
-    from spare_twin.measure.layers import LayersConfig
+from spare_twin.measure.layers_config import LayersConfig
 
 #: The layers' points stacked into one KD-tree, layer k at this height in a third coordinate: no
 #: nearest point is ever another layer's (the chain is centimetres across).

@@ -36,14 +36,14 @@ profile frame (s along the plane, t across it, z up, the base axis at s = t = 0)
    shortest chain that holds the points, where the coverage tolerance alone let them drift out.
    The fit, its starts and its residuals' Jacobian (in closed form) are `measure.fit`.
 4. **no link, or a link more**: a top layer that is its parent's points read a layer up
-   (`_top_layer_is_stray`), a layer that is the far end of its parent's plate cut off by the joint's
-   lean (`_is_cut`) and a link between joints too short to print (`_unprintable_link`) are merged into
+   (`measure.merges`: `top_layer_is_stray`), a layer that is the far end of its parent's plate cut off by the joint's
+   lean (`is_cut`) and a link between joints too short to print (`unprintable_link`) are merged into
    the layer below. Where the chain was seen from both sides of its plane, a joint is told by its
    thickness (`measure.joints`: at a pin two plates overlap, a layer thicker than one plate; a cut
    plate is one plate thick there; read where the two layers meet if a layer read as a cut sits a
    whole layer above its parent, `MIN_LINK_RISE_LAYERS`: the joint was fitted off its pin), and a
    layer as thick as a joint somewhere along it holds two links and is split there first; elsewhere
-   a cut plate is told by its plate centres' step where the two layers meet (`_cut_plate`: a
+   a cut plate is told by its plate centres' step where the two layers meet (`cut_plate`: a
    fraction of a layer, not a joint's whole layer), and a layer whose plate centres step by half a
    pitch or more along it is split there (`measure.steps`: a Kinect's smoothing ran a straight run
    of short links into one layer), and so is a last layer whose points two plates meeting at a bend
@@ -65,127 +65,19 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.spatial import cKDTree
 
-from spare_twin.config import MAX_MOVING_LINKS, PartDims, min_between_axes_mm_of
+from spare_twin.config import MAX_MOVING_LINKS
 from spare_twin.measure.bends import bent_layer, beyond_bend
-from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments, refit_seen_from
+from spare_twin.measure.fit import fit_layers, plate_segments, refit_seen_from
 from spare_twin.measure.fragments import adopt_fragments, counted_pieces, pieces
-from spare_twin.measure.joints import (
-    MIN_JOINT_EXCESS_LAYERS,
-    Thickness,
-    chain_sides,
-    hidden_joint,
-    joint_excess_layers,
-    seen_from_side,
-)
+from spare_twin.measure.joints import Thickness, chain_sides, hidden_joint, joint_excess_layers, seen_from_side
+from spare_twin.measure.layers_config import LayersConfig
 from spare_twin.measure.level import CombZero
 from spare_twin.measure.medians import grouped_medians
+from spare_twin.measure.merges import is_cut, top_layer_is_stray, unprintable_link, width_m
 from spare_twin.measure.plates import local_comb_layers
 from spare_twin.measure.steps import layer_steps, stepped_layer
 from spare_twin.observe.points import ObjectPoints
-from spare_twin.observe.profile import ChainProfile, parts_geometry_m
-
-#: Points this far above the socket's top are still the socket (its rim, noise).
-SOCKET_MARGIN_M = 0.003
-#: How far a measured link length may fall short of the printed one (the free ends come within 0.8 mm,
-#: the links between joints within about 1 mm on hand-held captures).
-LENGTH_ERROR_M = 0.0015
-
-
-def layers_geometry_m(parts: PartDims) -> dict[str, float]:
-    """The measurement's settings that the printed parts set (metres), from the profile's
-    (`observe.profile.parts_geometry_m`: the one place they are derived)."""
-    g = parts_geometry_m(parts)
-    return {
-        "layer_pitch_m": g["layer_pitch_m"],
-        "half_width_m": g["link_width_m"] / 2,
-        "half_thickness_m": g["link_thickness_m"] / 2,
-        "min_height_m": g["keepout_m"] + SOCKET_MARGIN_M,
-        "min_middle_link_m": min_between_axes_mm_of(parts) / 1000.0 - LENGTH_ERROR_M,
-    }
-
-
-_DEFAULT_PARTS = layers_geometry_m(PartDims())
-
-
-@dataclass(frozen=True)
-class LayersConfig:
-    """Measurement settings (metres). The plates' and the socket's are the default parts'
-    (`config.PartDims`); `for_parts` gives another print's."""
-
-    layer_pitch_m: float = _DEFAULT_PARTS["layer_pitch_m"]
-    half_width_m: float = _DEFAULT_PARTS["half_width_m"]
-    """Half a link plate's width: the plate is its centre line thickened by this."""
-    min_height_m: float = _DEFAULT_PARTS["min_height_m"]
-    """Points below this are the foot and the socket, not links."""
-    radius_m: float = 0.006
-    """Neighbourhood (in the chain's plane) whose median t labels a point."""
-    half_thickness_m: float = _DEFAULT_PARTS["half_thickness_m"]
-    """A plate's face lies this far from its centre across the plane (half its thickness)."""
-    min_side_cosine: float = 0.3
-    """A point whose cameras look at it this squarely along t is on a face, not an edge."""
-    max_shear: float = 0.15
-    """Largest shear of t along s (tan of the plane direction's error, about 8.5 deg) searched for."""
-    shear_steps: int = 301
-    shear_prior: float = 0.3
-    """Coherence a shear must gain per unit of shear to be preferred to none (`_layer_shear`)."""
-    min_layer_points: int = 12
-    """A layer with fewer points is noise (flying pixels, a pin head), not a link."""
-    min_layer_fraction: float = 0.03
-    """... or fewer than this share of the links' points,"""
-    min_thin_layer_width: float = 0.9
-    """... unless it is the layer just above the others and its points span this share of a plate's
-    width across their main direction (`count_links`): a top link seen in few points (dark plastic, a
-    capture from far) still shows its plate's width, a strip of its parent read a layer up (flying
-    pixels, a rim) does not."""
-    coverage_tolerance_m: float = 0.0025
-    """A plate sample this near a point of its layer is covered (about the points' spacing: set for
-    the 3 mm merge measured until release 0.6.19, kept for the 2 mm one). Nothing else stops a free
-    end (the base's top, the last link's tip) from running on past its points, since a longer plate
-    leaves fewer points outside: at 3.5 mm the ends came out 1.5-3 mm long on hand-held captures."""
-    max_stray_offset: float = 0.25
-    """A top layer whose points' median plate centre is within this of its own layer is a link."""
-    max_top_inside_parent: float = 0.8
-    """A top layer with this share of its points on its parent's plate is the parent's (`_top_layer_is_parent`)."""
-    cap_reach: float = 1.0
-    """Coverage samples reach this share of a half width past the centre line's ends (to the
-    rounded ends' rims)."""
-    free_end_pull: float = 0.01
-    """Pull on the two free ends' lengths (the base's top, the last link's tip), per metre and per
-    root point: within the coverage tolerance nothing else holds them, and they drifted out (base
-    +0.9 mm in the rig, last link +1.4-2.0 mm on hand-held captures). With it the fit keeps the
-    shortest chain that holds the points; the free ends are within 0.8 mm either way."""
-    max_rms_m: float = 0.01
-    """Points farther than this (RMS, outside their plates) from the best chain are no chain to
-    measure: a capture whose views are out of register blurs a chain into a cloud 2-3 cm thick. On
-    well-registered captures the RMS stays below 9 mm (Kinect), 5 mm in the rig."""
-    samples_per_link: int = 12
-    follow_comb: bool = True
-    """Read the layers a second way, the comb followed along the chain (`measure.plates`), and keep
-    that reading where it holds one piece a layer and none past the last where the comb's does not
-    (`split_layers`, `past_last_layer`), or fits clearly better (`ONE_COUNT_RMS_SHARE`); False: one comb of the layer
-    pitch for the whole chain (the chain as designed, no play)."""
-    min_middle_link_m: float = _DEFAULT_PARTS["min_middle_link_m"]
-    """A link between two joints measured shorter than this (the shortest its parts can print,
-    `config.min_between_axes_mm_of`, less `LENGTH_ERROR_M`) is no link: a plate tilted by the joints'
-    play across the half-way mark between two layers (`_unprintable_link`)."""
-    directions: int = 72
-    """Link directions tried by the fit's second start (`_initial_sequential`)."""
-    max_points: int = 3500
-    """At most this many points are measured (evenly through their fixed order): a 2 mm merge of a
-    hand-held capture (`observe.points.PointsConfig.fine_voxel_m`) holds 1,600-2,900 above the socket
-    (six development captures), the rig's 96 x 128 views about 1,800."""
-    bends: bool = True
-    """Split the last layer where its points bend in the plane, two plates holding them far closer
-    than its one (`measure.bends`); False: bends are not read."""
-    joint_thickness: bool = True
-    """Where the chain was seen from both sides of its plane, read its joints from how thick it stands
-    there (`measure.joints`: a pin's overlap is two plates thick) before the plate centres' step."""
-
-    @classmethod
-    def for_parts(cls, parts: PartDims, **settings) -> LayersConfig:
-        """The measurement of a chain printed with `parts` (its layer pitch, plates and socket);
-        `settings` override the rest."""
-        return cls(**{**layers_geometry_m(parts), **settings})
+from spare_twin.observe.profile import ChainProfile
 
 
 @dataclass(frozen=True)
@@ -353,7 +245,7 @@ def count_links(
     populated = np.nonzero(counts[1 : MAX_MOVING_LINKS + 1] >= enough)[0]
     n = int(populated.max()) + 1 if len(populated) else None
     if sz_m is not None and n is not None and n < MAX_MOVING_LINKS and counts[n + 1] >= cfg.min_layer_points:
-        if _width_m(sz_m[labels == n + 1]) >= cfg.min_thin_layer_width * 2 * cfg.half_width_m:
+        if width_m(sz_m[labels == n + 1]) >= cfg.min_thin_layer_width * 2 * cfg.half_width_m:
             n += 1
     return n, tuple(int(c) for c in counts)
 
@@ -476,7 +368,7 @@ def _at_count(
         costs = [np.hypot(rms, layer_t_rms_m(sz, plate_t_m, c, n)) for (_, rms), c in fits]
         (x, rms), labels = fits[int(np.argmin(costs))]
     per_layer = count_links(labels, cfg)[1]
-    if rms > cfg.max_rms_m or _unprintable_link(x, n, cfg) is not None:
+    if rms > cfg.max_rms_m or unprintable_link(x, n, cfg) is not None:
         why = (
             f"its points split into {count} links fit no chain of them ({1000 * rms:.1f} mm RMS, or a link"
             " too short to print)"
@@ -611,7 +503,7 @@ def split_layers(sz_m: np.ndarray, labels: np.ndarray, cfg: LayersConfig) -> int
 
 def _measure_reading_both(*reading) -> LayerMeasurement:
     """`_measure_reading` of the same arguments (`reading`), where a layer a whole layer up on a joint
-    fitted one plate thick is read where it meets its parent (`_is_cut`, `MIN_LINK_RISE_LAYERS`).
+    fitted one plate thick is read where it meets its parent (`merges.is_cut`, `merges.MIN_LINK_RISE_LAYERS`).
     Where that kept a layer, the reading is measured without it too: where both count and count
     otherwise, the count with the layer kept stands; with one count, the closer fit. A layer kept
     whose split from its parent was misread fits looser than merging it and splitting at the hidden
@@ -691,16 +583,16 @@ def _measure_reading(
                 continue
         excess = np.full(n, np.nan) if thickness is None else joint_excess_layers(thickness, starts)
         if n > 1 and (
-            _top_layer_is_stray(x, layers, centres[n], n, cfg)
-            or _is_cut(layers, centres, excess, n, thickness, cfg.half_width_m, kept)
+            top_layer_is_stray(x, layers, centres[n], n, cfg)
+            or is_cut(layers, centres, excess, n, thickness, cfg.half_width_m, kept)
         ):
             n -= 1
             labels = np.minimum(labels, n)  # as the fit reads them: a later split renumbers what is there
             continue
         # the top layer settled first: a tilted plate cut in two lower down reads as a link of its own,
         # often one too short to print
-        cut = _unprintable_link(x, n, cfg) or next(
-            (k for k in range(2, n) if _is_cut(layers, centres, excess, k, thickness, cfg.half_width_m, kept)), None
+        cut = unprintable_link(x, n, cfg) or next(
+            (k for k in range(2, n) if is_cut(layers, centres, excess, k, thickness, cfg.half_width_m, kept)), None
         )
         if cut is None:
             break
@@ -773,131 +665,6 @@ def layer_t_rms_m(sz_m: np.ndarray, plate_t_m: np.ndarray, labels: np.ndarray, n
         squares += float(np.sum((plate_t_m[mine] - design @ coef) ** 2))
         count += int(mine.sum())
     return float(np.sqrt(squares / count)) if count else 0.0
-
-
-def _unprintable_link(x: np.ndarray, n: int, cfg: LayersConfig) -> int | None:
-    """The first link between two joints (1..n-1) that the fit `x` makes shorter than any printable
-    one (`LayersConfig.min_middle_link_m`), or None. Joint play tilts each plate 1-4 degrees about its
-    joint and the tilts add up along the chain: where the plates have climbed past half a layer, one
-    plate is cut in two at the half-way mark, and the piece read a layer up fits as a link a few mm
-    long (bench seed 30022: 5 links counted 6, a 6 mm link between links 1 and 2)."""
-    for k in range(1, n):
-        if x[1 + k] < cfg.min_middle_link_m:
-            return k
-    return None
-
-
-def _top_layer_is_stray(
-    x: np.ndarray, layers: list[np.ndarray], centres: np.ndarray, n: int, cfg: LayersConfig
-) -> bool:
-    """Whether the top layer is its parent's points read a layer too high (noise, a pin head), not
-    a link: they lie on the parent's plate, and their plate centres (in layers) sit just past the
-    half-way mark between the two layers, where the tail of the parent's noise ends, not at n. A
-    real link folded back onto a parent of its length lies on its outline too, centred on n."""
-    if float(np.median(centres)) >= n - cfg.max_stray_offset:
-        return False
-    starts, ends = plate_segments(x, n, cfg)
-    top = layers[n]
-    inside = distance_to_segment(top, starts[n - 1], ends[n - 1]) <= cfg.half_width_m + cfg.coverage_tolerance_m
-    return bool(inside.mean() >= cfg.max_top_inside_parent)
-
-
-#: Where a layer's points meet its parent's (within this, in the plane), plate centres that step up
-#: by less than this many layers run on from the parent's: one plate tilted out of its layer.
-MAX_TILT_STEP_LAYERS = 0.35
-TILT_CONTACT_M = 0.009
-#: Where a joint reads no thicker than a plate but its layer's plate centres sit this many layers or
-#: more above its parent's (median against median), and the layer is at least half a plate wide, the
-#: thickness is read again where the two layers meet (their points within `MEETING_M` of each
-#: other), not at the fitted joint, and the layer is a link where the chain stands
-#: `MIN_MEETING_EXCESS_LAYERS` thicker than a plate there (`_is_cut`, `_measure_reading_both`). A fit
-#: that puts a joint off its pin reads a plate's thickness there: bench seed 31437's rig view (a 21 mm
-#: link before it; the layer 0.99 up, 0.93 layers thicker where the layers meet) merged a link as a
-#: cut, 4 links read as 3, and 31427's real capture (1.08 up, 3.3 thicker) 6 as 5. A cut plate's far
-#: end can sit most of a layer up where leans add up along the chain, but where it meets its near end
-#: it is one plate thick (31424 real: 0.82-0.86 up, -0.04 to -0.06 there, kept as a cut). A sliver is
-#: no layer to read (31414's clean render: 38 points, 2.8 mm across, a whole layer above the last
-#: link). 0.5 where the layers meet, a joint's own bar, was too low: a fold lays other plates over the
-#: meeting places (the stored rig view of 30485, `tests/data/bench_points`: 0.52-0.60, 5 links for 6).
-MIN_LINK_RISE_LAYERS = 0.75
-MEETING_M = 0.002
-MIN_MEETING_EXCESS_LAYERS = 0.75
-
-
-def _is_cut(
-    layers: list[np.ndarray],
-    centres: list[np.ndarray],
-    joint_excess: np.ndarray,
-    k: int,
-    thickness: Thickness | None,
-    half_width_m: float,
-    kept: list[int] | None = None,
-) -> bool:
-    """Whether layer k is its parent's plate cut in two, not a link: where joint k was seen from both
-    sides, by its thickness (`measure.joints`: a pin's overlap is a layer thicker than a plate, a cut
-    none), and with `kept` (a list) read again where the two layers meet if the layer sits a whole
-    layer up (`MIN_LINK_RISE_LAYERS`), a layer kept so added to `kept`; elsewhere by the plate
-    centres' step where the two layers meet (`_cut_plate`)."""
-    excess = joint_excess[k - 1]
-    if not np.isfinite(excess) or thickness is None:
-        return _cut_plate(layers, centres, k)
-    if (
-        kept is not None
-        and excess < MIN_JOINT_EXCESS_LAYERS
-        and _rise_layers(centres, k) >= MIN_LINK_RISE_LAYERS
-        and _width_m(layers[k]) >= half_width_m
-        and _meeting_excess_layers(thickness, layers[k - 1], layers[k], excess) >= MIN_MEETING_EXCESS_LAYERS
-    ):
-        kept.append(k)
-        return False
-    return bool(excess < MIN_JOINT_EXCESS_LAYERS)
-
-
-def _rise_layers(centres: list[np.ndarray], k: int) -> float:
-    """How far (in layers) layer k's plate centres sit above its parent's, median against median."""
-    if min(len(centres[k]), len(centres[k - 1])) == 0:
-        return 0.0
-    return float(np.median(centres[k]) - np.median(centres[k - 1]))
-
-
-def _width_m(sz_m: np.ndarray) -> float:
-    """The extent of points (N, 2) in the plane across their main direction: a plate's width or more
-    where a plate was seen, a sliver's thickness where a sliver was."""
-    if len(sz_m) < 3:
-        return 0.0
-    centred = sz_m - sz_m.mean(0)
-    across = np.linalg.svd(centred, full_matrices=False)[2][1]
-    return float(np.ptp(centred @ across))
-
-
-def _meeting_excess_layers(thickness: Thickness, parent: np.ndarray, top: np.ndarray, otherwise: float) -> float:
-    """The chain's excess thickness (layers, `Thickness.excess_layers`) where `top`'s points meet
-    `parent`'s, their median; `otherwise` where they do not meet or it is unseen there."""
-    if len(parent) == 0:
-        return otherwise
-    places = top[cKDTree(parent).query(top, distance_upper_bound=MEETING_M)[0] < MEETING_M]
-    excess = thickness.excess_layers(places) if len(places) else np.zeros(0)
-    excess = excess[np.isfinite(excess)]
-    return float(np.median(excess)) if len(excess) else otherwise
-
-
-def _cut_plate(layers: list[np.ndarray], centres: list[np.ndarray], k: int) -> bool:
-    """Whether layer k (above layer 1) is the far end of its parent's plate, tilted out of its layer by
-    the joint's play, not a link. A printed pin joint lets a link lean 1-4 deg out of the chain's
-    plane about its own joint: a 54 mm link's tip ends 3-4 mm (half a layer or more) off its layer,
-    and the rounding cuts the plate in two (bench seed 30009, 4 links counted 5, at the top; seed
-    30057, 4 counted 5, the second link cut). A real link meets its parent at a joint a whole layer
-    up: where the two layers' points meet, their plate centres step by about one layer; a tilted
-    plate's run on across the half-way mark, a step of a fraction."""
-    top, parent = layers[k], layers[k - 1]
-    if min(len(top), len(parent)) < 5:
-        return False
-    near_parent = cKDTree(parent).query(top, distance_upper_bound=TILT_CONTACT_M)[0] < TILT_CONTACT_M
-    near_top = cKDTree(top).query(parent, distance_upper_bound=TILT_CONTACT_M)[0] < TILT_CONTACT_M
-    if min(near_parent.sum(), near_top.sum()) < 5:
-        return False
-    step = float(np.median(centres[k][near_parent]) - np.median(centres[k - 1][near_top]))
-    return step < MAX_TILT_STEP_LAYERS
 
 
 def measure_profile(
