@@ -220,6 +220,32 @@ def test_a_reading_past_the_last_layer_a_chain_can_have_loses():
     assert past_last_layer(one_comb[0]) and not past_last_layer(followed[0])
 
 
+def test_a_last_plate_carried_past_the_sixth_layer_by_joint_play_is_still_a_chain():
+    """Bench seed 32093 (6 links, D435, 59 frames, tracked poses, every effect): the joints' play leans
+    add up along the chain and carry link 6's plate a layer past its own, 570 of the 3,500 points past
+    the sixth link's layer. Every one of them lies on link 6's plate in the plane, so the points are
+    a 6-link chain, not an object thicker than any chain (until release 0.6.43: no answer). Points
+    past the sixth layer that lie off the last plate (a shelf's frames, another object) still leave
+    no answer."""
+    from types import SimpleNamespace
+
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.abstain import not_a_chain
+
+    points, dirs, print_scale, sign_known, lengths_pu = _bench_points("seed32093")
+    m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
+    assert m.n_links == 6 and m.points_per_layer[7] > 500, m.points_per_layer
+    assert m.past_on_last_plate > 0.95 and m.past_is_last_plate
+    assert np.sum((m.lengths_pu - lengths_pu) ** 2) < 0.02, (m.lengths_pu, lengths_pu)
+    views = SimpleNamespace(arc_deg=None)
+    assert not_a_chain(views, m) is None
+    per_layer = (693, 337, 717, 322, 575, 209, 77, 570)
+    thicker = "570 of its 3500 points lie past the sixth link's layer: it is thicker than any chain"
+    for share, refused in ((0.3, True), (0.85, False), (None, True)):
+        m = LayerMeasurement(6, lengths_pu, np.zeros(6), per_layer, 0.0004, past_on_last_plate=share)
+        assert (not_a_chain(views, m) == thicker) is refused
+
+
 def test_a_reading_whose_checks_end_far_looser_than_its_closest_chain_gives_no_count(monkeypatch):
     """The rig view of bench seed 30485 (6 links, a 115 deg fold at the first joint, one frame of 8
     cameras; its last link hidden): with its plates' thickness read as the median of every place (until

@@ -108,7 +108,7 @@ def not_a_chain(obs: ChainObservation, m: LayerMeasurement) -> str | None:
     if total < MIN_CHAIN_POINTS:
         return f"too few points on the chain to count its links ({total}; at least {MIN_CHAIN_POINTS})"
     past = int(m.points_per_layer[-1]) if len(m.points_per_layer) > MAX_MOVING_LINKS + 1 else 0
-    if past > MAX_PAST_LAST_LAYER_FRACTION * total:
+    if past > MAX_PAST_LAST_LAYER_FRACTION * total and not m.past_is_last_plate:
         return f"{past} of its {total} points lie past the sixth link's layer: it is thicker than any chain"
     return None
 
