@@ -60,7 +60,7 @@ a third of the points of its other moving layers (their median, `MAX_DISPUTED_LA
 a full last layer the measured count stands. The measurement's wrong extra link is a few stray points
 read a layer up; a layer as full as the others is a link the network missed. Over every bench
 recording kept since release 0.6.32 (seeds 31254-32069, every side) the network was sure of fewer
-links than the measurement 9 times. The measured last layer held 0.09, 0.15 and 0.20 of the others'
+links than the measurement 9 times. The measured last layer held 0.08, 0.15 and 0.20 of the others'
 points where the network was right (31675, 31477, 31750, capture's clean renders: still no answer).
 Where it was wrong the share was 0.23 once (31327 real: still no answer, the measured 2 right) and
 0.51-1.04 five times (31261, 31647, 31763, 31903 real; 31913 clean render): the measured count now
@@ -103,7 +103,7 @@ __all__ = [
 NETWORK_OVERRULES_P = 0.95
 #: A network sure of fewer links than were measured leaves no answer only where the measured chain's
 #: last layer holds less than this share of the median points of its other moving layers (module
-#: docstring: where it was right the share was 0.09-0.20, where it was wrong 0.23-1.04).
+#: docstring: where it was right the share was 0.08-0.20, where it was wrong 0.23-1.04).
 MAX_DISPUTED_LAYER_SHARE = 1.0 / 3.0
 #: The source of the lengths and angles of a chain measured again at the count the network is sure
 #: of, over the measurement's lower one (`combined`).
