@@ -67,13 +67,13 @@ from scipy.spatial import cKDTree
 
 from spare_twin.config import MAX_MOVING_LINKS
 from spare_twin.measure.bends import bent_layer, beyond_bend
-from spare_twin.measure.fit import distance_to_segment, fit_layers, plate_segments, refit_seen_from
+from spare_twin.measure.fit import fit_layers, plate_segments, refit_seen_from
 from spare_twin.measure.fragments import adopt_fragments, counted_pieces, pieces
 from spare_twin.measure.joints import Thickness, chain_sides, hidden_joint, joint_excess_layers, seen_from_side
 from spare_twin.measure.layers_config import LayersConfig
 from spare_twin.measure.level import CombZero
 from spare_twin.measure.medians import grouped_medians
-from spare_twin.measure.merges import is_cut, top_layer_is_stray, unprintable_link, width_m
+from spare_twin.measure.merges import is_cut, share_on_plate, top_layer_is_stray, unprintable_link, width_m
 from spare_twin.measure.plates import local_comb_layers
 from spare_twin.measure.steps import layer_steps, stepped_layer
 from spare_twin.observe.points import ObjectPoints
@@ -690,8 +690,7 @@ def _past_on_last_plate(p: np.ndarray, past: np.ndarray, x: np.ndarray, n: int, 
     if not past.any():
         return None
     starts, ends = plate_segments(x, n, cfg)
-    off_m = distance_to_segment(p[past][:, [0, 2]], starts[n], ends[n])
-    return float(np.mean(off_m <= cfg.half_width_m + cfg.coverage_tolerance_m))
+    return share_on_plate(p[past][:, [0, 2]], starts[n], ends[n], cfg)
 
 
 def layer_t_rms_m(sz_m: np.ndarray, plate_t_m: np.ndarray, labels: np.ndarray, n: int) -> float:

@@ -34,9 +34,13 @@ def top_layer_is_stray(x: np.ndarray, layers: list[np.ndarray], centres: np.ndar
     if float(np.median(centres)) >= n - cfg.max_stray_offset:
         return False
     starts, ends = plate_segments(x, n, cfg)
-    top = layers[n]
-    inside = distance_to_segment(top, starts[n - 1], ends[n - 1]) <= cfg.half_width_m + cfg.coverage_tolerance_m
-    return bool(inside.mean() >= cfg.max_top_inside_parent)
+    return bool(share_on_plate(layers[n], starts[n - 1], ends[n - 1], cfg) >= cfg.max_top_inside_parent)
+
+
+def share_on_plate(sz_m: np.ndarray, start: np.ndarray, end: np.ndarray, cfg: LayersConfig) -> float:
+    """The share of points (N, 2) in the plane that lie on the plate from `start` to `end`: within its
+    half width and the coverage tolerance of its centre line."""
+    return float(np.mean(distance_to_segment(sz_m, start, end) <= cfg.half_width_m + cfg.coverage_tolerance_m))
 
 
 #: Where a layer's points meet its parent's (within this, in the plane), plate centres that step up
