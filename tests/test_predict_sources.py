@@ -331,3 +331,46 @@ def test_a_network_sure_of_a_link_more_is_measured_at_its_count(rig_rec, tmp_pat
     base, link_1, link_2 = combined["measurement"]["link_lengths_pu"]
     assert lengths[0] == pytest.approx(base, abs=0.005) and lengths[3] == pytest.approx(link_2, abs=0.005)
     assert lengths[1] + lengths[2] == pytest.approx(link_1, abs=0.01) and min(lengths[1:3]) > 0.25
+
+
+@pytest.mark.parametrize(
+    "other_n, other_rms_mm, told",
+    [(4, 1.07, False), (4, 1.20, False), (4, 1.30, True), (5, 1.07, True)],
+)
+def test_a_count_a_sweeps_two_registrations_dispute_is_answered_only_by_a_sure_network(other_n, other_rms_mm, told):
+    """Bench seed 31661 (6 links, D435, a registered sweep): brought into register on the object it
+    measured 5 links at 0.97 mm, as registered 4 at 1.07 mm, and the network gave no count. Where
+    the two registrations count otherwise and the other holds its points within
+    `MAX_DISAGREEING_COST_RATIO` of the closer, the measurement gives no count, and the answer is a
+    network's sure of the closer count or of more links (not of fewer: 31959's network was sure of
+    the other, lower count, wrong), else none; where the other holds them clearly farther, or counts
+    alike, the closer stands."""
+    from types import SimpleNamespace
+
+    from spare_twin.measure.chain import count_told
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.abstain import measurement_estimate
+    from spare_twin.predict.combine import combined
+
+    def chain(n, rms_mm):
+        lengths, angles = np.full(n + 1, 0.4), np.zeros(n)
+        return LayerMeasurement(n, lengths, angles, (996, 329, 449, 334, 335, 600, 0, 0), rms_mm / 1000, t_rms_m=0.0)
+
+    kept = chain(5, 0.97)
+    m = count_told(kept, chain(other_n, other_rms_mm))
+    obs = SimpleNamespace(reason=None, arc_deg=180.0)
+    measurement = measurement_estimate(obs, m)
+    if told:
+        assert m is kept and m.count_disputed is None and measurement.n_links == 5
+        assert combined(m, _sure_network(6, 0.9), measurement)[0].n_links == 5
+        return
+    assert m.n_links == 5 and f"count 5 and {other_n} links" in m.count_disputed
+    assert measurement.n_links is None and m.count_disputed in measurement.reason
+    cases = [(5, 0.9, None), (5, 0.99, 5), (6, 0.99, 6), (4, 0.99, None)]
+    for network_n, p, answer_n in cases:
+        answer, source = combined(m, _sure_network(network_n, p), measurement)
+        assert answer.n_links == answer_n
+        if answer_n is None:
+            assert source is None and m.count_disputed in answer.reason
+        else:
+            assert set(source.values()) == {"network"}

@@ -30,6 +30,16 @@ MIN_FRAMES_TO_SPLIT = 8
 #: A part whose chain fits its points this well (RMS, metres) ends the search: the print's own
 #: roughness and the sensor's noise leave 0.2-0.5 mm; a part still out of register leaves 5 mm and more.
 CLEAN_PART_RMS_M = 0.002
+#: Where a sweep's two registrations (as registered, and brought into register on the object) measure
+#: chains of other counts, the closer's count is disputed unless the other holds its points more than
+#: this many times farther (`LayerMeasurement.cost_m`; `count_told`). Over the 1,095 real captures of the
+#: bench outputs kept from seeds 31254-32357 (development) the two counted otherwise 17 times, within
+#: 1.25 x four times: three where the closer count was wrong (31571, 31661, 32080: 1.03-1.10 x; now no
+#: answer) and two where it was right (31921, 1.08 x, whose network is sure of it: it stands; 31959,
+#: 1.05 x at 9 mm RMS, no answer as before: its network was sure of the other, wrong count). Farther
+#: apart, the closer count was right 10 times (1.26-14.7 x) and wrong 3 (1.38-3.66 x; one of them,
+#: 31468, answered right by a network sure of more links).
+MAX_DISAGREEING_COST_RATIO = 1.25
 
 
 @dataclass(frozen=True)
@@ -87,7 +97,8 @@ def measure_views(
     (a rig, a sweep whose frames confirm its own poses, views given in memory) are looked at once. Views
     that go less than `min_arc_deg` round the chain are not measured (the fit is the slow part;
     `spare_twin.predict.abstain` gives no answer on them). The chain kept gives a count only where its
-    layers are told apart (`measure.layers.layers_told_apart`)."""
+    layers are told apart (`measure.layers.layers_told_apart`); a sweep's two registrations that count
+    otherwise, each holding its points about as closely, dispute it (`count_told`)."""
     geometry = Geometry(ProfileConfig.for_parts(parts), LayersConfig.for_parts(parts))
     found, measured = _best_try(seen, print_scale, progress, min_arc_deg, geometry)
     return found, layers_told_apart(measured, geometry.layers)
@@ -113,8 +124,8 @@ def _best_try(
     (on_object, measured), as_registered = readings
     seconds = _add(on_object.timings_s, as_registered[0].timings_s, but="registration")
     if as_registered[1].n_links is not None or seen.frames is None or len(views) < MIN_FRAMES_TO_SPLIT:
-        best = min(((on_object, measured), as_registered), key=_fit_rank)
-        return dataclasses.replace(best[0], timings_s=seconds), best[1]
+        best, other = sorted(((on_object, measured), as_registered), key=_fit_rank)
+        return dataclasses.replace(best[0], timings_s=seconds), count_told(best[1], other[1])
     # as registered the sweep fused into no chain: brought into register on the object the whole
     # sweep stands where it fits cleanly, else the closest of its parts
     why = "the whole did not fuse into one chain"
@@ -195,6 +206,18 @@ def _fit_rank(found: tuple[ChainObservation, LayerMeasurement]) -> tuple[bool, f
     and across it (`LayerMeasurement.cost_m`); ties keep the first."""
     m = found[1]
     return (m.n_links is None, m.cost_m if m.n_links is not None else 0.0)
+
+
+def count_told(kept: LayerMeasurement, other: LayerMeasurement) -> LayerMeasurement:
+    """`kept`, the closer of a sweep's two registrations' chains (`_fit_rank`), with the other kept on it
+    (`LayerMeasurement.other_registration`) where the other counts otherwise and holds its points about
+    as closely (`MAX_DISAGREEING_COST_RATIO`): neither registration tells the count (`predict` then
+    answers only with a network sure of one of the two)."""
+    if kept.n_links is None or other.n_links is None or other.n_links == kept.n_links:
+        return kept
+    if other.cost_m > MAX_DISAGREEING_COST_RATIO * kept.cost_m:
+        return kept
+    return dataclasses.replace(kept, other_registration=other)
 
 
 def _add(a: dict, b: dict, but: str | None = None) -> dict:

@@ -116,6 +116,22 @@ class LayerMeasurement:
     """The share of the points read past the sixth link's layer that lie on the last link's plate in
     the chain's plane (`MIN_PAST_ON_LAST_PLATE`); None where no point was read past it."""
 
+    other_registration: LayerMeasurement | None = field(default=None, repr=False, compare=False)
+    """A sweep's other registration's chain, where it counts otherwise and holds its points about as
+    closely (`measure.chain.count_told`): the count is disputed (`count_disputed`)."""
+
+    @property
+    def count_disputed(self) -> str | None:
+        """Why the count is not told, where a sweep's two registrations dispute it (`other_registration`),
+        else None."""
+        other = self.other_registration
+        if other is None or self.n_links is None:
+            return None
+        return (
+            f"its two registrations count {self.n_links} and {other.n_links} links and hold their points about"
+            f" as closely ({1000 * self.cost_m:.2f} and {1000 * other.cost_m:.2f} mm): its count is not told"
+        )
+
     @property
     def past_is_last_plate(self) -> bool:
         """Whether the points read past the sixth link's layer are the last link's plate, carried

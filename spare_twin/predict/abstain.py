@@ -121,9 +121,16 @@ def hold_network(network: Estimate, obs: ChainObservation, m: LayerMeasurement) 
     return Estimate.none(f"no chain to count: {why}", network.evidence)
 
 
+def count_not_told(m: LayerMeasurement) -> str:
+    """The measurement's reason for no answer where a sweep's two registrations dispute its count
+    (`LayerMeasurement.count_disputed`)."""
+    return f"no count measured: {m.count_disputed}"
+
+
 def measurement_estimate(obs: ChainObservation, m: LayerMeasurement) -> Estimate:
     """The layer measurement as an estimate, its RMS and points per layer as evidence; no answer
-    where its points lie on no chain (its own `reason`, or `not_a_chain`)."""
+    where its points lie on no chain (its own `reason`, or `not_a_chain`) or a sweep's two
+    registrations dispute its count (`count_not_told`)."""
     if obs.reason is not None:
         return Estimate.none(f"no chain in view: {obs.reason}")
     evidence = MeasurementEvidence(m.rms_m, tuple(int(p) for p in m.points_per_layer))
@@ -141,5 +148,7 @@ def measurement_estimate(obs: ChainObservation, m: LayerMeasurement) -> Estimate
             f"base, more than {MAX_LENGTH_SUM_SHARE:g} x any chain's {MAX_TOTAL_LENGTH:g}: its layers were misread"
         )
         return Estimate.none(reason, evidence)
+    if m.count_disputed is not None:
+        return Estimate.none(count_not_told(m), evidence)
     angles = None if m.angles_rad is None else _floats(m.angles_rad)
     return Estimate(int(m.n_links), _floats(m.lengths_pu), angles, evidence)

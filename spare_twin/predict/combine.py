@@ -70,6 +70,15 @@ Counting more links than the measurement at >= 0.95 the network was right each t
 shipped network before the rounds of seeds 31350-31541, each where the measurement merged two links' layers; 2 of 2
 in them), and it stands.
 
+Since release 0.6.45 a count a sweep's two registrations dispute (as registered and brought into
+register on the object, each measuring a chain of another count, the looser within 1.25 x of the
+closer: `measure.chain.count_told`) is answered only by a network sure of the closer registration's
+count or of more links (as it stands over any measured count), else not at all. On the 1,095 real
+captures kept from bench seeds 31254-32357 (development) this took three wrong counts away (31571,
+31661, 32080: the closer registration's count wrong, the network unsure) and kept 31921's right one
+(its network sure of the closer count); 31959 stays unanswered (its network sure of the looser,
+lower count, wrong, where 0.6.42's rule left no answer before).
+
 Until release 0.6.4 the network's count stood where it was confident of exactly one link more than
 the measurement (a last link hidden behind the others). On the bench's captures with a real print's
 and sensor's effects that rule made three right counts wrong and no wrong one right (seeds 30034,
@@ -85,6 +94,7 @@ import torch
 
 from spare_twin.measure.layers import LayerMeasurement
 from spare_twin.measure.slots import LENGTH_SLOTS, measurement_slots
+from spare_twin.predict.abstain import count_not_told
 from spare_twin.predict.estimate import FIELDS, Estimate, NetworkEvidence
 
 __all__ = [
@@ -148,10 +158,18 @@ def combined(
     the lengths and angles of the chain measured again at it, `at_network_count`, where that found
     one) or of fewer (then no answer); where the measurement found no chain the network's estimate as
     it is (its own abstention included), and where it cannot tell the chain's layers apart the
-    network's only where it is sure; where the points lie on no chain there is no answer."""
+    network's only where it is sure; where a sweep's two registrations dispute the count
+    (`LayerMeasurement.count_disputed`), the network's only where it is sure of the closer count or of
+    more links; where the points lie on no chain there is no answer."""
     everything_network = None if network.n_links is None else {f: "network" for f in FIELDS}
     if m.layers_blurred:
         return (network, everything_network) if _sure(network) else (Estimate.none(measurement.reason), None)
+    if m.count_disputed is not None and measurement.reason == count_not_told(m):
+        # a sweep's two registrations count otherwise: a network sure of the closer one's count tells
+        # it, as one sure of more links stands over any measured count; one sure of fewer does not
+        if _sure(network) and network.n_links >= m.n_links:
+            return network, everything_network
+        return Estimate.none(measurement.reason), None
     if m.reason is not None or (m.n_links is not None and measurement.n_links is None):
         return Estimate.none(measurement.reason), None  # the points lie on no chain, or too weakly
     if network_count_over(m, network, measurement) is not None:
