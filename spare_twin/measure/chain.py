@@ -34,10 +34,10 @@ CLEAN_PART_RMS_M = 0.002
 #: chains of other counts, the closer's count is disputed unless the other holds its points more than
 #: this many times farther (`LayerMeasurement.cost_m`; `count_told`). Over the 1,095 real captures of the
 #: bench outputs kept from seeds 31254-32357 (development) the two counted otherwise 17 times, within
-#: 1.25 x four times: three where the closer count was wrong (31571, 31661, 32080: 1.03-1.10 x; now no
+#: 1.25 x five times: three where the closer count was wrong (31571, 31661, 32080: 1.03-1.10 x; now no
 #: answer) and two where it was right (31921, 1.08 x, whose network is sure of it: it stands; 31959,
 #: 1.05 x at 9 mm RMS, no answer as before: its network was sure of the other, wrong count). Farther
-#: apart, the closer count was right 10 times (1.26-14.7 x) and wrong 3 (1.38-3.66 x; one of them,
+#: apart, the closer count was right 9 times (1.26-14.7 x) and wrong 3 (1.38-3.66 x; one of them,
 #: 31468, answered right by a network sure of more links).
 MAX_DISAGREEING_COST_RATIO = 1.25
 
