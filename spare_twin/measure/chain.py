@@ -212,7 +212,7 @@ def count_told(kept: LayerMeasurement, other: LayerMeasurement) -> LayerMeasurem
     """`kept`, the closer of a sweep's two registrations' chains (`_fit_rank`), with the other kept on it
     (`LayerMeasurement.other_registration`) where the other counts otherwise and holds its points about
     as closely (`MAX_DISAGREEING_COST_RATIO`): neither registration tells the count (`predict` then
-    answers only with a network sure of one of the two)."""
+    answers only with a network sure of the closer count or of more links)."""
     if kept.n_links is None or other.n_links is None or other.n_links == kept.n_links:
         return kept
     if other.cost_m > MAX_DISAGREEING_COST_RATIO * kept.cost_m:
