@@ -374,3 +374,36 @@ def test_a_count_a_sweeps_two_registrations_dispute_is_answered_only_by_a_sure_n
             assert source is None and m.count_disputed in answer.reason
         else:
             assert set(source.values()) == {"network"}
+
+
+@pytest.mark.parametrize(
+    "on_last_plate, network_n, p, answer_n",
+    [
+        (0.58, 6, 0.60, None),  # bench seed 32489: a sixth link in 45 points, the network reading 6
+        (0.58, 5, 0.90, 5),  # the network reads the measured count: it stands
+        (0.58, 6, 0.99, 6),  # sure of the link more: the network's count stands, as over any lower one
+        (0.95, 6, 0.60, 5),  # the last link's points read a layer up (31485: 0.91, no link)
+        (None, 6, 0.60, 5),  # nothing above the chain
+    ],
+)
+def test_a_thin_layer_off_the_last_plate_with_a_network_reading_one_link_more_leaves_no_answer(
+    on_last_plate, network_n, p, answer_n
+):
+    """Bench seed 32489's real capture (6 links, Kinect v1): its sixth link came out a layer of 45
+    points spanning 9.1 mm across, too thin to count, 42 % of them off the fifth link's plate; the
+    measurement counted 5 and the network read 6 at p = 0.60. Two weak signs of a missed link leave
+    no answer; one alone, or the last plate's points read a layer up, does not."""
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.combine import combined
+    from spare_twin.predict.estimate import Estimate, MeasurementEvidence
+
+    per_layer = (604, 192, 214, 254, 281, 242, 45, 0)
+    m = LayerMeasurement(
+        5, np.full(6, 0.4), np.zeros(5), per_layer, 0.0012, t_rms_m=0.001, above_on_last_plate=on_last_plate
+    )
+    measurement = Estimate(5, tuple(m.lengths_pu), tuple(m.angles_rad), MeasurementEvidence(0.0012, per_layer))
+    answer, source = combined(m, _sure_network(network_n, p), measurement)
+    assert answer.n_links == answer_n
+    if answer_n is None:
+        assert source is None and "42% lies off the last link's plate" in answer.reason
+        assert "the network reads 6" in answer.reason

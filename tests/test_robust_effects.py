@@ -278,7 +278,7 @@ def test_a_side_in_the_projectors_shadow_still_counts(printed_object, tmp_path):
     assert p.answer.n_links == 2, p.answer.reason
 
 
-def test_a_link_between_joints_shorter_than_any_printable_one_is_no_link():
+def test_a_link_shorter_than_any_printable_one_is_no_link():
     """Joint play's tilts add up along a chain, and a plate that climbs past a half-way mark is cut in
     two: the piece a layer up fits as a link a few mm long (bench seed 30022: 5 links counted 6, a 6 mm
     link). The default parts print no link shorter than 9 mm between axes (`config.validate`); a
@@ -295,6 +295,12 @@ def test_a_link_between_joints_shorter_than_any_printable_one_is_no_link():
     assert unprintable_link(x, 4, cfg) is None
     x[5] = 0.006  # the last link has one joint only: half the plate's width is its limit, not this
     assert unprintable_link(x, 4, cfg) is None
+    # ... less the 0.8 mm a free end may fall short: a last link the fit holds at its 5 mm bound
+    # covers its parent's tip tilted a layer up (bench seed 32451: 4 links counted 5)
+    assert cfg.min_last_link_m == pytest.approx(0.0052)
+    x[5] = 0.005
+    assert unprintable_link(x, 4, cfg) == 4
+    assert unprintable_link(x[[0, 1, 5, 9]], 1, cfg) is None  # one link only: no chain is left without it
     wide = LayersConfig.for_parts(dataclasses.replace(PartDims(), spacer_ring_diameter_mm=11.0))
     assert wide.min_middle_link_m > cfg.min_middle_link_m  # the parts set it
 
@@ -321,3 +327,17 @@ def test_a_top_link_seen_in_few_points_counts_where_it_shows_a_plates_width():
         top = rng.uniform([0.0, 0.1], [0.03, 0.1 + across_m], (60, 2))
         assert count_links(labels, cfg, np.concatenate([below, top]))[0] == n, across_m
     assert count_links(labels, cfg)[0] == 5  # without the points' places, the share alone
+
+
+def test_a_sixth_link_too_thin_to_count_is_reported_off_the_last_plate():
+    """Bench seed 32489's real capture (6 links, Kinect v1, release 0.6.45): its sixth link came out
+    45 points spanning 9.1 mm across, under a plate's width, and the chain counted 5. Those points
+    lie 42 % off the fifth link's plate (`LayerMeasurement.above_on_last_plate`), where the last
+    plate's points read a layer up lie on it (`predict.combine.MAX_ABOVE_ON_LAST_PLATE`)."""
+    points, dirs, print_scale, sign_known, lengths_pu = _bench_points("seed32489")
+    m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
+    assert m.n_links == 5 and m.points_per_layer[6] == 45, m.points_per_layer
+    assert m.above_on_last_plate == pytest.approx(0.578, abs=0.01)
+    # the tilted chains above hold nothing a layer over their last plate
+    points, dirs = _tilted_chain((0.09, 0.05, 0.06), (90.0, -90.0), (-2.0, 4.0))
+    assert measure_layers(points, PRINT_SCALE, True, LayersConfig(), dirs).above_on_last_plate is None

@@ -116,6 +116,12 @@ class LayerMeasurement:
     """The share of the points read past the sixth link's layer that lie on the last link's plate in
     the chain's plane (`MIN_PAST_ON_LAST_PLATE`); None where no point was read past it."""
 
+    above_on_last_plate: float | None = None
+    """The share of the points of the layer just above the last that lie on the last link's plate in
+    the chain's plane, where that layer holds at least `LayersConfig.min_layer_points` but did not
+    count (too few for a link, or spanning less than a plate's width: `count_links`); else None. Off
+    the plate they may be a link of their own seen in few points (`predict.combine`)."""
+
     other_registration: LayerMeasurement | None = field(default=None, repr=False, compare=False)
     """A sweep's other registration's chain, where it counts otherwise and holds its points about as
     closely (`measure.chain.count_told`): the count is disputed (`count_disputed`)."""
@@ -401,7 +407,7 @@ def _at_count(
         return LayerMeasurement(None, None, None, per_layer, rms, reason=why)
     x = _refit_seen_from(p, labels, n, cfg, x, seen_from)
     m = _chain(p, labels, n, x, rms, per_layer, print_scale, plate_t_m)
-    return replace(m, past_on_last_plate=_past_on_last_plate(p, labels > MAX_MOVING_LINKS, x, n, cfg))
+    return _with_points_beyond(m, p, labels, x, cfg)
 
 
 def _chosen_reading(
@@ -659,7 +665,7 @@ def _measure_reading(
         return LayerMeasurement(None, None, None, per_layer, rms, reason, closest_passed=passed)
     x = _refit_seen_from(p, labels_n, n, cfg, x, seen_from)
     m = _chain(p, labels_n, n, x, rms, per_layer, print_scale, plate_t_m)
-    return replace(m, past_on_last_plate=_past_on_last_plate(p, labels > MAX_MOVING_LINKS, x, n, cfg))
+    return _with_points_beyond(m, p, labels, x, cfg)
 
 
 def _fit(layers: list[np.ndarray], n: int, cfg: LayersConfig, key: tuple[int, bytes], fits: dict | None):
@@ -700,7 +706,22 @@ def _chain(
     return LayerMeasurement(n, x[1 : n + 2] / print_scale, angles, per_layer, rms, t_rms_m=t_rms, labels=labels_n)
 
 
-def _past_on_last_plate(p: np.ndarray, past: np.ndarray, x: np.ndarray, n: int, cfg: LayersConfig) -> float | None:
+def _with_points_beyond(
+    m: LayerMeasurement, p: np.ndarray, labels: np.ndarray, x: np.ndarray, cfg: LayersConfig
+) -> LayerMeasurement:
+    """`m` with the shares of the points beyond its chain `x` that lie on its last plate: those read
+    past the sixth link's layer, and those of the layer just above the last where it holds at least
+    `min_layer_points` (labels: every point's layer as the chain settled, those above it included)."""
+    n = m.n_links
+    above = labels == n + 1
+    return replace(
+        m,
+        past_on_last_plate=_on_last_plate(p, labels > MAX_MOVING_LINKS, x, n, cfg),
+        above_on_last_plate=_on_last_plate(p, above, x, n, cfg) if above.sum() >= cfg.min_layer_points else None,
+    )
+
+
+def _on_last_plate(p: np.ndarray, past: np.ndarray, x: np.ndarray, n: int, cfg: LayersConfig) -> float | None:
     """The share of the points `past` (a mask of `p`) that lie on the last plate of the chain `x` in
     the plane (within its half width and the coverage tolerance); None where no point is past."""
     if not past.any():

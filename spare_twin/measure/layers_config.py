@@ -14,6 +14,8 @@ SOCKET_MARGIN_M = 0.003
 #: How far a measured link length may fall short of the printed one (the free ends come within 0.8 mm,
 #: the links between joints within about 1 mm on hand-held captures).
 LENGTH_ERROR_M = 0.0015
+#: How far a measured free end (the last link's tip) may fall short of the printed one.
+FREE_END_ERROR_M = 0.0008
 
 
 def layers_geometry_m(parts: PartDims) -> dict[str, float]:
@@ -26,6 +28,7 @@ def layers_geometry_m(parts: PartDims) -> dict[str, float]:
         "half_thickness_m": g["link_thickness_m"] / 2,
         "min_height_m": g["keepout_m"] + SOCKET_MARGIN_M,
         "min_middle_link_m": min_between_axes_mm_of(parts) / 1000.0 - LENGTH_ERROR_M,
+        "min_last_link_m": g["link_width_m"] / 2 - FREE_END_ERROR_M,
     }
 
 
@@ -93,6 +96,11 @@ class LayersConfig:
     """A link between two joints measured shorter than this (the shortest its parts can print,
     `config.min_between_axes_mm_of`, less `LENGTH_ERROR_M`) is no link: a plate tilted by the joints'
     play across the half-way mark between two layers (`merges.unprintable_link`)."""
+    min_last_link_m: float = _DEFAULT_PARTS["min_last_link_m"]
+    """A last link measured shorter than this (half a plate's width, the shortest `config.validate`
+    prints, less `FREE_END_ERROR_M`) is no link: its parent's tip tilted by the joints' play into the
+    layer above, which the fit can only cover with a link held at its lower bound (5 mm)
+    (`merges.unprintable_link`)."""
     directions: int = 72
     """Link directions tried by the fit's second start (`fit._initial_sequential`)."""
     max_points: int = 3500

@@ -15,14 +15,17 @@ from spare_twin.measure.layers_config import LayersConfig
 
 
 def unprintable_link(x: np.ndarray, n: int, cfg: LayersConfig) -> int | None:
-    """The first link between two joints (1..n-1) that the fit `x` makes shorter than any printable
-    one (`LayersConfig.min_middle_link_m`), or None. Joint play tilts each plate 1-4 degrees about its
-    joint and the tilts add up along the chain: where the plates have climbed past half a layer, one
-    plate is cut in two at the half-way mark, and the piece read a layer up fits as a link a few mm
-    long (bench seed 30022: 5 links counted 6, a 6 mm link between links 1 and 2)."""
+    """The first link (1..n) that the fit `x` makes shorter than any printable one, or None: between
+    two joints `LayersConfig.min_middle_link_m`, the last `LayersConfig.min_last_link_m`. Joint play
+    tilts each plate 1-4 degrees about its joint and the tilts add up along the chain: where the
+    plates have climbed past half a layer, one plate is cut in two at the half-way mark, and the piece
+    read a layer up fits as a link a few mm long (bench seed 30022: 5 links counted 6, a 6 mm link
+    between links 1 and 2; 32451: 4 counted 5, a 5 mm last link on the tip of the fourth)."""
     for k in range(1, n):
         if x[1 + k] < cfg.min_middle_link_m:
             return k
+    if n > 1 and x[1 + n] < cfg.min_last_link_m:
+        return n
     return None
 
 
