@@ -389,7 +389,7 @@ def test_a_count_a_sweeps_two_registrations_dispute_is_answered_only_by_a_sure_n
 def test_a_thin_layer_off_the_last_plate_with_a_network_reading_one_link_more_leaves_no_answer(
     on_last_plate, network_n, p, answer_n
 ):
-    """Bench seed 32489's real capture (6 links, Kinect v1): its sixth link came out a layer of 45
+    """Bench seed 32489's real capture (6 links, SR300): its sixth link came out a layer of 45
     points spanning 9.1 mm across, too thin to count, 42 % of them off the fifth link's plate; the
     measurement counted 5 and the network read 6 at p = 0.60. Two weak signs of a missed link leave
     no answer; one alone, or the last plate's points read a layer up, does not."""

@@ -330,10 +330,10 @@ def test_a_top_link_seen_in_few_points_counts_where_it_shows_a_plates_width():
 
 
 def test_a_sixth_link_too_thin_to_count_is_reported_off_the_last_plate():
-    """Bench seed 32489's real capture (6 links, Kinect v1, release 0.6.45): its sixth link came out
-    45 points spanning 9.1 mm across, under a plate's width, and the chain counted 5. Those points
-    lie 42 % off the fifth link's plate (`LayerMeasurement.above_on_last_plate`), where the last
-    plate's points read a layer up lie on it (`predict.combine.MAX_ABOVE_ON_LAST_PLATE`)."""
+    """Bench seed 32489's real capture (6 links, SR300, ray caster, release 0.6.45): its sixth link
+    came out 45 points spanning 9.1 mm across, under a plate's width, and the chain counted 5. Those
+    points lie 42 % off the fifth link's plate (`LayerMeasurement.above_on_last_plate`), where the
+    last plate's points read a layer up lie on it (`predict.combine.MAX_ABOVE_ON_LAST_PLATE`)."""
     points, dirs, print_scale, sign_known, lengths_pu = _bench_points("seed32489")
     m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
     assert m.n_links == 5 and m.points_per_layer[6] == 45, m.points_per_layer

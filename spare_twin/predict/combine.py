@@ -82,12 +82,13 @@ lower count, wrong, where 0.6.42's rule left no answer before).
 Since release 0.6.46 a layer just above the measured chain that did not count (at least 12 points,
 too few for a link or spread narrower than a plate's width: `measure.layers.count_links`) and lies
 mostly off the last link's plate (`MAX_ABOVE_ON_LAST_PLATE`) leaves no answer where the network
-reads one link more: two weak signs of a link the count missed. Over the 3,888 answers of bench seeds
-31254-32549 (development; every side) such a layer came with a count 4 times: 31841 and 32489 real
-(0.68 and 0.58 on the plate; 6 links counted 5, the network reading 6 at p = 0.59 and 0.60: now no
-answer), 32080 real (0.68; 5 counted 3, no answer already) and 32080's clean render (0.69; 5 counted
-5, the network reading 5: stands). The 24 such layers 0.8 or more on the plate were no link 22
-times (0.91-1.0 on it) and a link twice (31996, 32357 real: 1.0 and 0.89; their counts stand).
+reads one link more: two weak signs of a link the count missed. On the 895 real captures of bench
+seeds 31638-32549 (development) such a layer came with a count 19 times. Off the plate 3 times, each
+a link the count missed: 31841 and 32489 (0.68 and 0.58 on the plate; 6 links counted 5, the network
+reading 6 at p = 0.59 and 0.60: now no answer) and 32080 (0.73; 5 counted 3, no answer already). On
+it (0.86-1.0) 16 times: no link 14 times, a link twice (31996, 32357, whose counts stand, wrong).
+Among the stored answers of every side of seeds 31254-32549 one more lay off the plate: 32080's
+clean render (0.69), where it was no link and the network read the measured 5: that count stands.
 
 Until release 0.6.4 the network's count stood where it was confident of exactly one link more than
 the measurement (a last link hidden behind the others). On the bench's captures with a real print's
