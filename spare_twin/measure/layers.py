@@ -721,13 +721,13 @@ def _with_points_beyond(
     )
 
 
-def _on_last_plate(p: np.ndarray, past: np.ndarray, x: np.ndarray, n: int, cfg: LayersConfig) -> float | None:
-    """The share of the points `past` (a mask of `p`) that lie on the last plate of the chain `x` in
-    the plane (within its half width and the coverage tolerance); None where no point is past."""
-    if not past.any():
+def _on_last_plate(p: np.ndarray, beyond: np.ndarray, x: np.ndarray, n: int, cfg: LayersConfig) -> float | None:
+    """The share of the points `beyond` (a mask of `p`) that lie on the last plate of the chain `x` in
+    the plane (within its half width and the coverage tolerance); None where the mask holds none."""
+    if not beyond.any():
         return None
     starts, ends = plate_segments(x, n, cfg)
-    return share_on_plate(p[past][:, [0, 2]], starts[n], ends[n], cfg)
+    return share_on_plate(p[beyond][:, [0, 2]], starts[n], ends[n], cfg)
 
 
 def layer_t_rms_m(sz_m: np.ndarray, plate_t_m: np.ndarray, labels: np.ndarray, n: int) -> float:
