@@ -82,11 +82,12 @@ lower count, wrong, where 0.6.42's rule left no answer before).
 Since release 0.6.46 a layer just above the measured chain that did not count (at least 12 points,
 too few for a link or spread narrower than a plate's width: `measure.layers.count_links`) and lies
 mostly off the last link's plate (`MAX_ABOVE_ON_LAST_PLATE`) leaves no answer where the network
-reads one link more: two weak signs of a link the count missed. On the 895 real captures of bench
-seeds 31638-32549 (development) such a layer came with a count 19 times. Off the plate 3 times, each
-a link the count missed: 31841 and 32489 (0.68 and 0.58 on the plate; 6 links counted 5, the network
-reading 6 at p = 0.59 and 0.60: now no answer) and 32080 (0.73; 5 counted 3, no answer already). On
-it (0.86-1.0) 16 times: no link 14 times, a link twice (31996, 32357, whose counts stand, wrong).
+reads one link more: two weak signs of a link the count missed. On the 1,296 real captures kept
+from bench seeds 31254-32549 (development) such a layer came with a count 24 times. Off the plate 3
+times, each a link the count missed: 31841 and 32489 (0.68 and 0.58 on the plate; 6 links counted
+5, the network reading 6 at p = 0.59 and 0.60: now no answer) and 32080 (0.73; 5 counted 3, no
+answer already). On it (0.86-1.0) 21 times: no link 19 times, a link twice (31996, 32357, whose
+counts stand, wrong).
 Among the stored answers of every side of seeds 31254-32549 one more lay off the plate: 32080's
 clean render (0.69), where it was no link and the network read the measured 5: that count stands.
 
