@@ -406,8 +406,8 @@ def _at_count(
         )
         return LayerMeasurement(None, None, None, per_layer, rms, reason=why)
     x = _refit_seen_from(p, labels, n, cfg, x, seen_from)
-    m = _chain(p, labels, n, x, rms, per_layer, print_scale, plate_t_m)
-    return _with_points_beyond(m, p, labels, x, cfg)
+    # every point is read in layers 0..count here: none lies beyond the chain (`_with_points_beyond`)
+    return _chain(p, labels, n, x, rms, per_layer, print_scale, plate_t_m)
 
 
 def _chosen_reading(
