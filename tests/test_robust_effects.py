@@ -329,6 +329,21 @@ def test_a_top_link_seen_in_few_points_counts_where_it_shows_a_plates_width():
     assert count_links(labels, cfg)[0] == 5  # without the points' places, the share alone
 
 
+def test_a_reading_much_further_from_its_points_loses_whatever_the_split_check_says(monkeypatch):
+    """Bench seed 32438's real capture (3 links, D435, pybullet, release 0.6.45): the comb's reading
+    counts 3 at 2.8 mm from its points with one layer in two pieces, the followed reading 2 at 4.9 mm
+    in one piece a layer. The count of the chain 1.7 times closer stands (`SPLIT_OVERRULED_COST_RATIO`);
+    asked first, the split check kept the 2."""
+    from spare_twin.measure import layers
+
+    points, dirs, print_scale, sign_known, lengths_pu = _bench_points("seed32438")
+    m = measure_layers(points, print_scale, sign_known, LayersConfig(), dirs)
+    assert m.n_links == 3 == len(lengths_pu) - 1, m.points_per_layer
+    assert np.sum((np.asarray(m.lengths_pu) - lengths_pu) ** 2) < 0.05  # the whole chain, within 0.15 a link
+    monkeypatch.setattr(layers, "SPLIT_OVERRULED_COST_RATIO", np.inf)
+    assert measure_layers(points, print_scale, sign_known, LayersConfig(), dirs).n_links == 2
+
+
 def test_a_sixth_link_too_thin_to_count_is_reported_off_the_last_plate():
     """Bench seed 32489's real capture (6 links, SR300, ray caster, release 0.6.45): its sixth link
     came out 45 points spanning 9.1 mm across, under a plate's width, and the chain counted 5. Those
