@@ -452,7 +452,7 @@ def _chosen_reading(
         closer, looser = sorted((as_designed, followed), key=lambda m: m.rms_m)
         if closer.rms_m <= ONE_COUNT_RMS_SHARE * looser.rms_m:
             return closer
-    if followed.n_links != as_designed.n_links:  # a reading much further from its points misread them
+    else:  # other counts: a reading much further from its points than the other's misread them
         closer, looser = sorted((as_designed, followed), key=lambda m: (m.cost_m, m.n_links))
         if looser.cost_m > closer.cost_m and looser.cost_m >= SPLIT_OVERRULED_COST_RATIO * closer.cost_m:
             return closer
