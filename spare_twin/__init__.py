@@ -19,6 +19,6 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 from spare_twin.errors import SpareTwinError  # noqa: E402
 
-__version__ = "0.6.47"
+__version__ = "0.6.48"
 
 __all__ = ["SpareTwinError", "__version__"]

@@ -4,6 +4,7 @@ of each field, `--answer network` is the network's argmax, and flags that do not
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -273,6 +274,39 @@ def test_where_the_layers_blur_only_a_sure_network_answers(p, answered):
         assert answer.n_links == 4 and set(source.values()) == {"network"}
     else:
         assert answer.n_links is None and source is None and why in answer.reason
+
+
+@pytest.mark.parametrize("network_n, p, answered", [(6, 0.96, True), (6, 0.9, False), (5, 0.99, False)])
+def test_a_reading_that_did_not_settle_answers_its_closest_chain_only_with_a_sure_network(network_n, p, answered):
+    """A layer reading whose checks took a 6-link chain at 0.7 mm to 5 links at 1.5 mm did not
+    settle (held-out seed 33017, Kinect: 6 links; the network sure of 6 at p = 0.95). With the network
+    sure of the closest chain's count the answer is that chain, its count labelled the network's and
+    its lengths and angles the closest chain's; unsure, or sure of another count, no answer."""
+    from types import SimpleNamespace
+
+    from spare_twin.measure.chain import closest_passed
+    from spare_twin.measure.layers import LayerMeasurement
+    from spare_twin.predict.abstain import measurement_estimate
+    from spare_twin.predict.combine import CLOSEST_PASSED, combined
+
+    obs = SimpleNamespace(reason=None, arc_deg=200.0)
+    lengths = np.array([1.01, 0.16, 0.35, 0.22, 0.46, 0.36, 0.46])
+    closest = LayerMeasurement(6, lengths, np.full(6, 0.4), (700, 300, 320, 280, 400, 310, 390), 0.0007, t_rms_m=0.0008)
+    why = "the layers' reading did not settle: its checks took a chain of 6 links at 0.7 mm (RMS) to 5 at 1.5 mm"
+    m = LayerMeasurement(None, None, None, (700, 300, 600, 400, 310, 390), 0.0015, why, closest_passed=closest)
+    measurement = measurement_estimate(obs, m)
+    assert measurement.n_links is None and why in measurement.reason
+    passed = measurement_estimate(obs, closest_passed(m))
+    answer, source = combined(m, _sure_network(network_n, p), measurement, None, passed)
+    if answered:
+        assert answer.n_links == 6 and np.allclose(answer.link_lengths_pu, lengths)
+        assert source == {"n_links": "network", "link_lengths_pu": CLOSEST_PASSED, "joint_angles_rad": CLOSEST_PASSED}
+    else:
+        assert answer.n_links is None and source is None and why in answer.reason
+    # the closest chain is held to layers told apart, as a kept chain is: blurred, it tells no count
+    blurred = replace(m, closest_passed=replace(closest, t_rms_m=0.003))
+    assert closest_passed(blurred).n_links is None and "not told apart" in closest_passed(blurred).reason
+    assert closest_passed(LayerMeasurement(6, lengths, np.zeros(6), closest.points_per_layer, 0.0007)) is None
 
 
 def test_points_on_no_chain_give_no_answer_however_sure_the_network():

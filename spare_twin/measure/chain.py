@@ -197,6 +197,14 @@ def measured_at_count(
     return layers_told_apart(measure_profile(seen.object, seen.profile, print_scale, layers_cfg, count), layers_cfg)
 
 
+def closest_passed(m: LayerMeasurement, parts: PartDims = PartDims()) -> LayerMeasurement | None:
+    """Where the reading of `m` did not settle, the closest chain its checks passed through
+    (`LayerMeasurement.closest_passed`), held to layers told apart; else None."""
+    if m.closest_passed is None:
+        return None
+    return layers_told_apart(m.closest_passed, LayersConfig.for_parts(parts))
+
+
 def _too_short_an_arc(seen: ChainObservation, min_arc_deg: float) -> bool:
     return seen.arc_deg is not None and seen.arc_deg < min_arc_deg
 

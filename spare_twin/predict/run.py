@@ -17,7 +17,7 @@ import numpy as np
 
 from spare_twin.config import DEFAULT_PRINT_SCALE, PartDims
 from spare_twin.errors import SpareTwinError
-from spare_twin.measure.chain import measure_views, measured_at_count
+from spare_twin.measure.chain import closest_passed, measure_views, measured_at_count
 from spare_twin.measure.layers import LayerMeasurement
 from spare_twin.measure.level import levelled_image
 from spare_twin.measure.process import MeasureProcess
@@ -184,7 +184,9 @@ def answer_of(
             t0 = time.perf_counter()
             at_network_count = measurement_estimate(obs, measured_at_count(obs, print_scale, count, parts))
             timings["measurement"] = round(timings.get("measurement", 0.0) + time.perf_counter() - t0, 3)
-        chosen, source = combined(m, network, measurement, at_network_count)
+        passed = closest_passed(m, parts)
+        closest = None if passed is None else measurement_estimate(obs, passed)
+        chosen, source = combined(m, network, measurement, at_network_count, closest)
     return Prediction(chosen, source, network, measurement, timings_s=timings, **common)
 
 
