@@ -155,8 +155,8 @@ def overrule(res: dict, slots: dict) -> dict:
     ones where the measurement found a chain and the network is not sure of more links (`slots`:
     `measurement_slots`, batched as tensors). Where `predict` would answer nothing because the
     network is sure of fewer links, the measured count stands: every instance is scored. Where the
-    network's count stands, its lengths and angles stay (`predict` measures the points again there;
-    the slots hold no points)."""
+    network's count stands, its lengths and angles stay (`predict` measures the points again there,
+    or answers the closest chain of a reading that did not settle; the slots hold neither)."""
     measured = torch.as_tensor(slots["measured_n"]).reshape(-1).to(res["pred_n"].device)
     sure = res["probabilities"].max(1).values >= NETWORK_OVERRULES_P
     found = (measured > 0) & ~(sure & (res["pred_n"] > measured))
