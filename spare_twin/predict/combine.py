@@ -207,12 +207,11 @@ def combined(
         if _sure(network) and network.n_links >= m.n_links:
             return network, everything_network
         return Estimate.none(measurement.reason), None
-    if closest_passed is not None and closest_passed.n_links is not None and m.closest_passed is not None:
+    if closest_passed is not None and _sure(network) and network.n_links == closest_passed.n_links:
         # a reading that did not settle passed through a chain of the count the network is sure of:
         # two estimators of their own agree on it (module docstring)
-        if _sure(network) and network.n_links == closest_passed.n_links:
-            source = {f: "network" if f == "n_links" else CLOSEST_PASSED for f in FIELDS}
-            return replace(closest_passed, evidence=None), source
+        source = {f: "network" if f == "n_links" else CLOSEST_PASSED for f in FIELDS}
+        return replace(closest_passed, evidence=None), source
     if m.reason is not None or (m.n_links is not None and measurement.n_links is None):
         return Estimate.none(measurement.reason), None  # the points lie on no chain, or too weakly
     if network_count_over(m, network, measurement) is not None:
